@@ -1,0 +1,45 @@
+# Two commands on a fresh machine: `make run` and `make test`.
+SHELL := /bin/bash
+VENV ?= .venv
+PY := $(VENV)/bin/python
+PIP := $(PY) -m pip -q --disable-pip-version-check
+STAMP := $(VENV)/.installed
+PORT ?= 8866
+# Quick mode for heavy notebook/test steps; `PYFREP_QUICK=0 make test` runs the paper's settings.
+PYFREP_QUICK ?= 1
+export PYFREP_QUICK
+
+.PHONY: setup run test lint browser bench clean
+
+$(STAMP): pyproject.toml constraints.txt
+	@test -x $(PY) || python3 -m venv $(VENV)
+	$(PIP) install --upgrade pip
+	$(PIP) install -c constraints.txt torch==2.13.0
+	$(PIP) install -c constraints.txt -e ".[dev]"
+	@touch $(STAMP)
+
+setup: $(STAMP)
+
+# Debian's chromium for the real-browser tests (Playwright cannot download its own here).
+browser:
+	@command -v chromium >/dev/null 2>&1 || { \
+		echo "installing chromium (apt)"; \
+		apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium fonts-liberation >/dev/null; }
+
+lint: setup
+	$(VENV)/bin/ruff check .
+	$(VENV)/bin/ruff format --check .
+
+test: setup browser lint
+	$(VENV)/bin/pytest -q tests pyfrep_core workbench
+	@if ls notebooks/*.ipynb >/dev/null 2>&1; then \
+		$(VENV)/bin/pytest -q -p no:doctest --nbval-lax --nbval-current-env notebooks/; fi
+
+run: setup
+	$(PY) -m pyfrep_core.demo
+
+bench: setup
+	for b in benchmarks/*.py; do $(PY) $$b; done
+
+clean:
+	rm -rf $(VENV) .pytest_cache .ruff_cache

@@ -1,0 +1,46 @@
+"""pyfrep_core: the differentiable Function Representation kernel.
+
+A solid is a function f: R^3 -> R, f >= 0 inside, written with torch so autograd gives
+derivatives with respect to points and shape parameters.
+
+>>> import torch
+>>> from pyfrep_core import *
+>>> def model(x):
+...     sp1 = sphere(x, center=(0, 0, 0), r=1)
+...     b1 = block(x, vertex=(-0.75, -0.75, -0.75), dx=1.5, dy=1.5, dz=1.5)
+...     t1 = intersection(sp1, b1)
+...     c1 = cylX(x, center=(0, 0, 0), r=0.5)
+...     c2 = cylY(x, center=(0, 0, 0), r=0.5)
+...     c3 = cylZ(x, center=(0, 0, 0), r=0.5)
+...     t2 = difference(t1, c1)
+...     t3 = difference(t2, c2)
+...     t4 = difference(t3, c3)
+...     return t4
+>>> model(torch.tensor([[0.55, 0.55, 0.55], [0.0, 0.0, 0.0]])) > 0
+tensor([ True, False])
+"""
+
+from .diff import grad, project_to_surface, value_and_grad
+from .mesh import Mesh, polygonize
+from .model import Model, Param, model
+from .operations import *  # noqa: F403
+from .operations import __all__ as _operations_all
+from .primitives import *  # noqa: F403
+from .primitives import __all__ as _primitives_all
+from .progress import Event, Progress
+
+__version__ = "0.1.0"
+__all__ = [
+    "Event",
+    "Mesh",
+    "Model",
+    "Param",
+    "Progress",
+    "grad",
+    "model",
+    "polygonize",
+    "project_to_surface",
+    "value_and_grad",
+    *_operations_all,
+    *_primitives_all,
+]

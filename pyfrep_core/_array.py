@@ -1,0 +1,138 @@
+"""Array plumbing shared by the kernel: numpy in -> numpy out, torch in -> torch out.
+
+Primitives are written once, on torch tensors.  The :func:`frep` decorator lets a
+numpy user call them too: numpy arrays are converted (float64 stays float64) and
+the result is converted back when no torch tensor came in.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+import torch
+
+Array = torch.Tensor | np.ndarray
+Scalar = float | torch.Tensor
+
+
+def _to_torch(value: Any) -> Any:
+    if isinstance(value, np.ndarray):
+        if value.dtype.kind in "iub":
+            value = value.astype(np.float64)
+        return torch.from_numpy(np.ascontiguousarray(value))
+    return value
+
+
+def _back(value: Any) -> Any:
+    if isinstance(value, torch.Tensor):
+        return value.detach().cpu().numpy()
+    if isinstance(value, tuple):
+        return tuple(_back(v) for v in value)
+    if isinstance(value, list):
+        return [_back(v) for v in value]
+    if isinstance(value, dict):
+        return {k: _back(v) for k, v in value.items()}
+    return value
+
+
+def frep(fn: Callable) -> Callable:
+    """Make a torch function accept numpy arrays and return numpy for numpy input.
+
+    Torch tensors pass through untouched (no copy, graph kept); the wrapper only
+    converts when a numpy array is among the arguments and no tensor is.
+    """
+
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        has_numpy = False
+        for a in args:
+            if isinstance(a, torch.Tensor):
+                return fn(*args, **kwargs)
+            if isinstance(a, np.ndarray):
+                has_numpy = True
+        for a in kwargs.values():
+            if isinstance(a, torch.Tensor):
+                return fn(*args, **kwargs)
+            if isinstance(a, np.ndarray):
+                has_numpy = True
+        if not has_numpy:
+            return fn(*args, **kwargs)
+        out = fn(*[_to_torch(a) for a in args], **{k: _to_torch(v) for k, v in kwargs.items()})
+        return _back(out)
+
+    return wrapper
+
+
+def as_tensor(x: Any, name: str = "x", dtype: torch.dtype | None = None) -> tuple[torch.Tensor, bool]:
+    """Convert ``x`` to a floating torch tensor; also say whether it came in as numpy.
+
+    Integer input becomes float64 (numpy) or the default dtype (torch).
+    """
+    if isinstance(x, torch.Tensor):
+        t = x
+        if not t.is_floating_point():
+            t = t.to(dtype or torch.get_default_dtype())
+        elif dtype is not None:
+            t = t.to(dtype)
+        return t, False
+    if isinstance(x, np.ndarray | list | tuple):
+        try:
+            arr = np.asarray(x, dtype=np.float64 if dtype is None else None)
+        except (TypeError, ValueError) as err:
+            raise TypeError(f"{name} must be a numeric array, got {type(x).__name__}: {err}") from None
+        t = torch.from_numpy(np.ascontiguousarray(arr))
+        if dtype is not None:
+            t = t.to(dtype)
+        return t, True
+    raise TypeError(f"{name} must be a torch tensor or a numpy array, got {type(x).__name__}")
+
+
+def check_points(x: torch.Tensor, dim: int | Sequence[int] = 3, name: str = "x") -> None:
+    """Raise ValueError unless ``x`` has shape (..., dim) with at least one point."""
+    dims = (dim,) if isinstance(dim, int) else tuple(dim)
+    if x.ndim < 1 or x.shape[-1] not in dims:
+        want = " or ".join(f"(N, {d})" for d in dims)
+        raise ValueError(f"{name} must have shape {want}, got {tuple(x.shape)}")
+    if x.numel() == 0:
+        raise ValueError(f"{name} is empty (shape {tuple(x.shape)})")
+
+
+def check_finite(x: torch.Tensor, name: str = "x") -> None:
+    """Raise ValueError naming the first non-finite entry of ``x`` (one device sync)."""
+    bad = ~torch.isfinite(x)
+    if bool(bad.any()):
+        idx = tuple(int(i) for i in torch.nonzero(bad)[0])
+        raise ValueError(f"{name} contains a non-finite value ({x[idx].item()}) at index {idx}")
+
+
+def vec(v: Any, like: torch.Tensor, n: int = 3, name: str = "center") -> torch.Tensor:
+    """A length-``n`` vector (tuple, list, array or tensor) as a tensor on ``like``'s device/dtype.
+
+    Tensors with ``requires_grad`` keep their graph, so a center can be a shape parameter.
+    A batched vector of shape (B, n) is allowed; it broadcasts against points as (B, 1, n)
+    when the points are (N, n).
+    """
+    if isinstance(v, torch.Tensor):
+        t = v.to(device=like.device, dtype=like.dtype)
+    elif isinstance(v, list | tuple) and any(isinstance(c, torch.Tensor) for c in v):
+        t = torch.stack([torch.as_tensor(c, dtype=like.dtype, device=like.device) for c in v], dim=-1)
+    else:
+        t = torch.as_tensor(np.asarray(v, dtype=np.float64), dtype=like.dtype, device=like.device)
+    if t.ndim == 0 or t.shape[-1] != n:
+        raise ValueError(f"{name} must have {n} components, got shape {tuple(t.shape)}")
+    if t.ndim == 2 and like.ndim >= 2:
+        t = t.reshape(t.shape[0], *([1] * (like.ndim - 1)), n)
+    return t
+
+
+def safe_sqrt(s: torch.Tensor) -> torch.Tensor:
+    """sqrt with finite derivatives at 0.
+
+    Adds the dtype's smallest normal number under the root: the value changes by at
+    most ~1e-19 (float32) / 1e-154 (float64), and d sqrt/ds stays finite at s = 0, so
+    R-functions at f1 = f2 = 0 give the sub-gradient grad f1 + grad f2 instead of NaN.
+    """
+    return torch.sqrt(s + torch.finfo(s.dtype).tiny)

@@ -1,0 +1,181 @@
+"""Named, bounded shape parameters: ``@model`` and ``Param`` (paper section 4, parametric modeling).
+
+A model declares its parameters once; the declaration drives the workbench sliders,
+the fitting bounds and sampling.  Calling a model evaluates its defining function:
+
+>>> import torch
+>>> from pyfrep_core import model, Param, sphere
+>>> @model(bounds=((-1, -1, -1), (1, 1, 1)), r=Param(0.5, 0.1, 0.9, label="radius"))
+... def ball(x, r):
+...     return sphere(x, r=r)
+>>> x = torch.zeros(2, 3)
+>>> ball(x).shape, ball(x, r=torch.tensor([0.2, 0.3, 0.4])).shape
+(torch.Size([2]), torch.Size([3, 2]))
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch
+
+from ._array import as_tensor
+
+Bounds = tuple[tuple[float, ...], tuple[float, ...]]
+
+
+@dataclass(frozen=True)
+class Param:
+    """One scalar shape parameter: default value, closed range [lower, upper] and a label."""
+
+    default: float
+    lower: float
+    upper: float
+    label: str = ""
+
+    def __post_init__(self) -> None:
+        for name in ("default", "lower", "upper"):
+            value = getattr(self, name)
+            if not isinstance(value, int | float) or not math.isfinite(value):
+                raise ValueError(f"Param {name} must be a finite number, got {value!r}")
+        if self.lower >= self.upper:
+            raise ValueError(f"Param lower ({self.lower}) must be below upper ({self.upper})")
+        if not self.lower <= self.default <= self.upper:
+            raise ValueError(f"Param default {self.default} is outside [{self.lower}, {self.upper}]")
+
+
+def check_bounds(bounds: Any, dim: int | None = None, name: str = "bounds") -> Bounds:
+    """Validate ``((xmin, ymin, zmin), (xmax, ymax, zmax))``; return it as float tuples."""
+    try:
+        lo, hi = bounds
+        lo = tuple(float(v) for v in lo)
+        hi = tuple(float(v) for v in hi)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be ((xmin, ...), (xmax, ...)), got {bounds!r}") from None
+    if len(lo) != len(hi) or (dim is not None and len(lo) != dim):
+        want = dim if dim is not None else len(lo)
+        raise ValueError(f"{name} must give {want} lower and {want} upper values, got {bounds!r}")
+    for i, (a, b) in enumerate(zip(lo, hi, strict=True)):
+        if not (math.isfinite(a) and math.isfinite(b)):
+            raise ValueError(f"{name} must be finite, got {bounds!r}")
+        if not a < b:
+            raise ValueError(f"{name} are inverted or empty on axis {i}: lower {a} >= upper {b}")
+    return lo, hi
+
+
+class Model:
+    """A defining function ``fn(x, **params)`` with declared parameters and default bounds.
+
+    Attributes
+    ----------
+    params : dict name -> Param, in declaration order.
+    bounds : ((xmin, ...), (xmax, ...)) or None: the box used by meshing, sampling and
+        the workbench when none is given.
+    dim : number of spatial coordinates (3, or 2 for planar models).
+    """
+
+    def __init__(self, fn: Callable, params: Mapping[str, Param], bounds: Any = None, dim: int = 3):
+        for name, p in params.items():
+            if not isinstance(p, Param):
+                raise TypeError(f"parameter {name!r} must be declared with Param(...), got {p!r}")
+        self.fn = fn
+        self.params: dict[str, Param] = dict(params)
+        self.dim = dim
+        self.bounds: Bounds | None = None if bounds is None else check_bounds(bounds, dim)
+        functools.update_wrapper(self, fn)
+
+    def __repr__(self) -> str:
+        ps = ", ".join(f"{k}={p.default}" for k, p in self.params.items())
+        return f"<model {self.__name__}({ps})>"
+
+    @property
+    def names(self) -> list[str]:
+        """Parameter names in declaration order."""
+        return list(self.params)
+
+    def defaults(self) -> dict[str, float]:
+        """Default value of every parameter."""
+        return {k: p.default for k, p in self.params.items()}
+
+    def _resolve(self, overrides: Mapping[str, Any]) -> dict[str, Any]:
+        unknown = [k for k in overrides if k not in self.params]
+        if unknown:
+            raise TypeError(
+                f"{self.__name__} has no parameter {unknown[0]!r}; declared: {', '.join(self.params) or 'none'}"
+            )
+        values = self.defaults()
+        values.update(overrides)
+        return values
+
+    def check(self, **values: Any) -> dict[str, float]:
+        """Validate parameter values against the declared ranges.
+
+        Returns the full parameter dict (defaults filled in).  Raises TypeError for an
+        undeclared name and ValueError naming the value and range for one out of range
+        or not finite.  Tensors are checked element-wise.
+        """
+        full = self._resolve(values)
+        for name, value in full.items():
+            p = self.params[name]
+            arr = np.asarray(value.detach().cpu() if isinstance(value, torch.Tensor) else value, dtype=float)
+            if not np.all(np.isfinite(arr)):
+                raise ValueError(f"parameter {name}={value!r} is not finite")
+            if np.any(arr < p.lower) or np.any(arr > p.upper):
+                raise ValueError(f"parameter {name}={value!r} is outside its range [{p.lower}, {p.upper}]")
+        return full
+
+    def __call__(self, x: Any, **overrides: Any) -> Any:
+        """Evaluate f at points ``x`` (..., dim); tensors of shape (B,) as parameters give (B, ...)."""
+        t, was_numpy = as_tensor(x, "x")
+        if t.ndim < 1 or t.shape[-1] != self.dim:
+            raise ValueError(f"x must have shape (N, {self.dim}), got {tuple(t.shape)}")
+        values = self._resolve(overrides)
+        batch = None
+        for name, v in values.items():
+            if isinstance(v, np.ndarray):
+                v = torch.as_tensor(v, dtype=t.dtype, device=t.device)
+            if isinstance(v, torch.Tensor) and v.ndim >= 1:
+                if v.ndim != 1:
+                    raise ValueError(f"parameter {name} must be a scalar or a (B,) batch, got shape {tuple(v.shape)}")
+                if batch is not None and v.shape[0] != batch:
+                    raise ValueError(f"parameter {name} has a batch of {v.shape[0]}, others have {batch}")
+                batch = v.shape[0]
+                v = v.to(t.dtype).reshape(batch, *([1] * (t.ndim - 1)))
+            values[name] = v
+        out = self.fn(t, **values)
+        if batch is not None and out.shape[0] != batch:
+            out = out.expand(batch, *t.shape[:-1])
+        return out.detach().cpu().numpy() if was_numpy else out
+
+
+def model(bounds: Any = None, dim: int = 3, **params: Param) -> Callable[[Callable], Model]:
+    """Declare a parametric model: ``@model(bounds=..., name=Param(default, lower, upper, label))``.
+
+    Parameters
+    ----------
+    bounds : ((xmin, ymin, zmin), (xmax, ymax, zmax)), optional
+        Default box for meshing, sampling and the workbench.
+    dim : int
+        Spatial dimension of the points (3, or 2 for planar models such as the ellipse of Fig. 4).
+    **params : Param
+        The shape parameters, in the order the sliders and fit vectors use.
+
+    Examples
+    --------
+    >>> from pyfrep_core import model, Param, sphere
+    >>> @model(r=Param(0.5, 0.2, 0.8, label="radius"))
+    ... def ball(x, r):
+    ...     return sphere(x, r=r)
+    >>> ball.params["r"].upper
+    0.8
+    """
+
+    def wrap(fn: Callable) -> Model:
+        return Model(fn, params, bounds=bounds, dim=dim)
+
+    return wrap

@@ -1,0 +1,8 @@
+"""The paper's shapes as parametric models (``@model``): one file each, imported here.
+
+Each is a :class:`pyfrep_core.model.Model` with named, bounded parameters and default bounds.
+"""
+
+from ._fig1 import fig1_part
+
+__all__ = ["fig1_part"]

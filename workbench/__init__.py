@@ -1,0 +1,1 @@
+"""Jupyter workbench: ipywidgets panels composing pyfrep_core calls (no geometry here)."""

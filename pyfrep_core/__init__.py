@@ -21,6 +21,8 @@ tensor([ True, False])
 """
 
 from .diff import grad, project_to_surface, value_and_grad
+from .lattices import *  # noqa: F403
+from .lattices import __all__ as _lattices_all
 from .mesh import Mesh, polygonize
 from .model import Model, Param, model
 from .operations import *  # noqa: F403
@@ -41,6 +43,7 @@ __all__ = [
     "polygonize",
     "project_to_surface",
     "value_and_grad",
+    *_lattices_all,
     *_operations_all,
     *_primitives_all,
 ]

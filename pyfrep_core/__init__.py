@@ -27,9 +27,13 @@ from .mesh import Mesh, polygonize
 from .model import Model, Param, model
 from .operations import *  # noqa: F403
 from .operations import __all__ as _operations_all
+from .periodic import *  # noqa: F403
+from .periodic import __all__ as _periodic_all
 from .primitives import *  # noqa: F403
 from .primitives import __all__ as _primitives_all
 from .progress import Event, Progress
+from .transforms import *  # noqa: F403
+from .transforms import __all__ as _transforms_all
 
 __version__ = "0.1.0"
 __all__ = [
@@ -45,5 +49,7 @@ __all__ = [
     "value_and_grad",
     *_lattices_all,
     *_operations_all,
+    *_periodic_all,
     *_primitives_all,
+    *_transforms_all,
 ]

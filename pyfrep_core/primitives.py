@@ -9,6 +9,9 @@ returns f of shape (...).  Numeric arguments may be floats or tensors with
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
+import numpy as np
 import torch
 
 from ._array import frep, safe_sqrt, vec
@@ -16,6 +19,7 @@ from .operations import intersection
 
 Center = tuple[float, float, float] | torch.Tensor
 Center2 = tuple[float, float] | torch.Tensor
+Values = Sequence[float] | float | torch.Tensor
 
 
 __all__ = [
@@ -31,6 +35,21 @@ __all__ = [
     "circle",
     "ellipse",
     "rectangle",
+    "ellCylX",
+    "ellCylY",
+    "ellCylZ",
+    "coneX",
+    "coneY",
+    "coneZ",
+    "ellConeX",
+    "ellConeY",
+    "ellConeZ",
+    "superEll",
+    "superQuadric",
+    "blobby",
+    "metaBall",
+    "soft",
+    "noiseG",
 ]
 
 
@@ -308,3 +327,492 @@ def rectangle(x: torch.Tensor, vertex: Center2 = (0.0, 0.0), dx: float = 1.0, dy
     sx = d[..., 0] * (dx - d[..., 0])
     sy = d[..., 1] * (dy - d[..., 1])
     return intersection(sx, sy)
+
+
+def _ell_cyl(x: torch.Tensor, center: Center, a: float, b: float, axis: int) -> torch.Tensor:
+    d = x - vec(center, x)
+    i, j = [k for k in range(3) if k != axis]
+    return 1.0 - (d[..., i] / a) ** 2 - (d[..., j] / b) ** 2
+
+
+@frep
+def ellCylX(x: torch.Tensor, center: Center = (0.0, 0.0, 0.0), a: float = 1.0, b: float = 1.0) -> torch.Tensor:
+    """Infinite elliptic cylinder along x: ``1 - (dy/a)^2 - (dz/b)^2``.
+
+    Parameters
+    ----------
+    x : (..., 3) points.
+    center : (3,) a point of the axis.
+    a, b : semi-axes of the cross-section along y and z.
+
+    Returns
+    -------
+    (...) field values, >= 0 inside.
+
+    Examples
+    --------
+    >>> import torch
+    >>> ellCylX(torch.tensor([[7.0, 2.0, 0.0], [0.0, 0.0, 1.0], [0.0, 0.0, 0.0]]), a=2.0, b=1.0)
+    tensor([0., 0., 1.])
+    """
+    return _ell_cyl(x, center, a, b, 0)
+
+
+@frep
+def ellCylY(x: torch.Tensor, center: Center = (0.0, 0.0, 0.0), a: float = 1.0, b: float = 1.0) -> torch.Tensor:
+    """Infinite elliptic cylinder along y: ``1 - (dx/a)^2 - (dz/b)^2``.
+
+    Parameters
+    ----------
+    x : (..., 3) points.
+    center : (3,) a point of the axis.
+    a, b : semi-axes of the cross-section along x and z.
+
+    Returns
+    -------
+    (...) field values, >= 0 inside.
+
+    Examples
+    --------
+    >>> import torch
+    >>> ellCylY(torch.tensor([[2.0, 7.0, 0.0], [0.0, 0.0, 2.0]]), a=2.0, b=1.0)
+    tensor([ 0., -3.])
+    """
+    return _ell_cyl(x, center, a, b, 1)
+
+
+@frep
+def ellCylZ(x: torch.Tensor, center: Center = (0.0, 0.0, 0.0), a: float = 1.0, b: float = 1.0) -> torch.Tensor:
+    """Infinite elliptic cylinder along z: ``1 - (dx/a)^2 - (dy/b)^2``.
+
+    Parameters
+    ----------
+    x : (..., 3) points.
+    center : (3,) a point of the axis.
+    a, b : semi-axes of the cross-section along x and y.
+
+    Returns
+    -------
+    (...) field values, >= 0 inside.
+
+    Examples
+    --------
+    >>> import torch
+    >>> ellCylZ(torch.tensor([[0.0, 1.0, 5.0], [1.0, 0.0, 5.0]]), a=2.0, b=1.0)
+    tensor([0.0000, 0.7500])
+    """
+    return _ell_cyl(x, center, a, b, 2)
+
+
+def _ell_cone(x: torch.Tensor, center: Center, a: float, b: float, axis: int) -> torch.Tensor:
+    d = x - vec(center, x)
+    i, j = [k for k in range(3) if k != axis]
+    return d[..., axis] ** 2 - (d[..., i] / a) ** 2 - (d[..., j] / b) ** 2
+
+
+@frep
+def coneX(x: torch.Tensor, center: Center = (0.0, 0.0, 0.0), R: float = 1.0) -> torch.Tensor:
+    """Infinite double cone along x with apex ``center``: ``dx^2 - (dy/R)^2 - (dz/R)^2``.
+
+    The cross-section at distance ``|dx|`` from the apex is a disc of radius ``R |dx|``
+    (``R`` is the tangent of the half-angle).
+
+    Parameters
+    ----------
+    x : (..., 3) points.
+    center : (3,) apex.
+    R : radius of the cross-section at unit distance from the apex.
+
+    Returns
+    -------
+    (...) field values, >= 0 inside.
+
+    Examples
+    --------
+    >>> import torch
+    >>> coneX(torch.tensor([[2.0, 1.0, 0.0], [-2.0, 0.0, 1.0], [1.0, 0.0, 0.0]]), R=0.5)
+    tensor([0., 0., 1.])
+    """
+    return _ell_cone(x, center, R, R, 0)
+
+
+@frep
+def coneY(x: torch.Tensor, center: Center = (0.0, 0.0, 0.0), R: float = 1.0) -> torch.Tensor:
+    """Infinite double cone along y with apex ``center``: ``dy^2 - (dx/R)^2 - (dz/R)^2``.
+
+    Parameters
+    ----------
+    x : (..., 3) points.
+    center : (3,) apex.
+    R : radius of the cross-section at unit distance from the apex.
+
+    Returns
+    -------
+    (...) field values, >= 0 inside.
+
+    Examples
+    --------
+    >>> import torch
+    >>> coneY(torch.tensor([[1.0, 2.0, 0.0], [1.0, 0.0, 0.0]]), R=0.5)
+    tensor([ 0., -4.])
+    """
+    return _ell_cone(x, center, R, R, 1)
+
+
+@frep
+def coneZ(x: torch.Tensor, center: Center = (0.0, 0.0, 0.0), R: float = 1.0) -> torch.Tensor:
+    """Infinite double cone along z with apex ``center``: ``dz^2 - (dx/R)^2 - (dy/R)^2``.
+
+    Parameters
+    ----------
+    x : (..., 3) points.
+    center : (3,) apex.
+    R : radius of the cross-section at unit distance from the apex.
+
+    Returns
+    -------
+    (...) field values, >= 0 inside.
+
+    Examples
+    --------
+    >>> import torch
+    >>> coneZ(torch.tensor([[0.0, 1.0, 2.0], [0.0, 0.0, 3.0]]), R=0.5)
+    tensor([0., 9.])
+    """
+    return _ell_cone(x, center, R, R, 2)
+
+
+@frep
+def ellConeX(x: torch.Tensor, center: Center = (0.0, 0.0, 0.0), a: float = 1.0, b: float = 1.0) -> torch.Tensor:
+    """Infinite elliptic double cone along x: ``dx^2 - (dy/a)^2 - (dz/b)^2``.
+
+    Parameters
+    ----------
+    x : (..., 3) points.
+    center : (3,) apex.
+    a, b : semi-axes (along y and z) of the cross-section at unit distance from the apex.
+
+    Returns
+    -------
+    (...) field values, >= 0 inside.
+
+    Examples
+    --------
+    >>> import torch
+    >>> ellConeX(torch.tensor([[1.0, 2.0, 0.0], [1.0, 0.0, 1.0]]), a=2.0, b=1.0)
+    tensor([0., 0.])
+    """
+    return _ell_cone(x, center, a, b, 0)
+
+
+@frep
+def ellConeY(x: torch.Tensor, center: Center = (0.0, 0.0, 0.0), a: float = 1.0, b: float = 1.0) -> torch.Tensor:
+    """Infinite elliptic double cone along y: ``dy^2 - (dx/a)^2 - (dz/b)^2``.
+
+    Parameters
+    ----------
+    x : (..., 3) points.
+    center : (3,) apex.
+    a, b : semi-axes (along x and z) of the cross-section at unit distance from the apex.
+
+    Returns
+    -------
+    (...) field values, >= 0 inside.
+
+    Examples
+    --------
+    >>> import torch
+    >>> ellConeY(torch.tensor([[2.0, 1.0, 0.0], [0.0, 1.0, 0.0]]), a=2.0, b=1.0)
+    tensor([0., 1.])
+    """
+    return _ell_cone(x, center, a, b, 1)
+
+
+@frep
+def ellConeZ(x: torch.Tensor, center: Center = (0.0, 0.0, 0.0), a: float = 1.0, b: float = 1.0) -> torch.Tensor:
+    """Infinite elliptic double cone along z: ``dz^2 - (dx/a)^2 - (dy/b)^2``.
+
+    Parameters
+    ----------
+    x : (..., 3) points.
+    center : (3,) apex.
+    a, b : semi-axes (along x and y) of the cross-section at unit distance from the apex.
+
+    Returns
+    -------
+    (...) field values, >= 0 inside.
+
+    Examples
+    --------
+    >>> import torch
+    >>> ellConeZ(torch.tensor([[2.0, 0.0, -1.0], [0.0, 2.0, 1.0]]), a=2.0, b=1.0)
+    tensor([ 0., -3.])
+    """
+    return _ell_cone(x, center, a, b, 2)
+
+
+def _pow0(t: torch.Tensor, p: float | torch.Tensor) -> torch.Tensor:
+    """``t ** p`` for t >= 0 with value 0 and a finite (zero) gradient at t = 0.
+
+    The double ``where`` keeps the unused branch away from 0 ** (negative) = inf, which
+    would otherwise turn into NaN gradients (superellipsoids with exponents < 1).
+    """
+    positive = t > 0
+    return torch.where(positive, torch.where(positive, t, torch.ones_like(t)) ** p, torch.zeros_like(t))
+
+
+def _super_ellipsoid(u: torch.Tensor, v: torch.Tensor, w: torch.Tensor, s1: float, s2: float) -> torch.Tensor:
+    # HyperFun hfSuperEll: 1 - (|u|^(2/s2) + |v|^(2/s2))^(s2/s1) - |w|^(2/s1), written on squares
+    uv = _pow0(u * u, 1.0 / s2) + _pow0(v * v, 1.0 / s2)
+    return 1.0 - _pow0(uv, s2 / s1) - _pow0(w * w, 1.0 / s1)
+
+
+@frep
+def superEll(
+    x: torch.Tensor,
+    center: Center = (0.0, 0.0, 0.0),
+    a: float = 1.0,
+    b: float = 1.0,
+    c: float = 1.0,
+    s1: float = 1.0,
+    s2: float = 1.0,
+) -> torch.Tensor:
+    """Superellipsoid (HyperFun ``hfSuperEll``).
+
+    ``1 - (|dx/a|^(2/s2) + |dy/b|^(2/s2))^(s2/s1) - |dz/c|^(2/s1)``.
+    ``s1 = s2 = 1`` is the ellipsoid, exponents towards 0 give a box, 2 an octahedron,
+    above 2 a star.  Gradients are finite everywhere, including on the coordinate
+    planes through the center where a power with exponent < 1 is not differentiable.
+
+    Parameters
+    ----------
+    x : (..., 3) points.
+    center : (3,) center.
+    a, b, c : semi-axes along x, y, z.
+    s1 : "north-south" exponent (z profile), > 0.
+    s2 : "east-west" exponent (xy cross-section), > 0.
+
+    Returns
+    -------
+    (...) field values, >= 0 inside.
+
+    Examples
+    --------
+    >>> import torch
+    >>> p = torch.tensor([[2.0, 0.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.5, 0.5]])
+    >>> superEll(p, a=2.0, b=1.0, c=1.0, s1=0.5, s2=0.5)
+    tensor([0.0000, 0.0000, 0.8125])
+    """
+    d = x - vec(center, x)
+    return _super_ellipsoid(d[..., 0] / a, d[..., 1] / b, d[..., 2] / c, s1, s2)
+
+
+def _euler_local(x: torch.Tensor, r: Center, t: Center) -> torch.Tensor:
+    """Local coordinates ``Rx(rx)^T Ry(ry)^T Rz(rz)^T (x - t)`` (the inverse of R = Rz Ry Rx, then + t)."""
+    from .transforms import rotate3DX, rotate3DY, rotate3DZ  # transforms imports nothing from here
+
+    rv = vec(r, x, name="r")
+    p = x - vec(t, x, name="t")
+    return rotate3DX(rotate3DY(rotate3DZ(p, rv[..., 2]), rv[..., 1]), rv[..., 0])
+
+
+@frep
+def superQuadric(
+    x: torch.Tensor,
+    e: tuple[float, float] | torch.Tensor = (1.0, 1.0),
+    a: Center = (1.0, 1.0, 1.0),
+    r: Center = (0.0, 0.0, 0.0),
+    t: Center = (0.0, 0.0, 0.0),
+) -> torch.Tensor:
+    """Superquadric (superellipsoid) in a general pose, the reference code's ``superQuadric``.
+
+    ``1 - ((|u/a1|^(2/e2) + |v/a2|^(2/e2))^(e2/e1) + |w/a3|^(2/e1))`` where (u, v, w) are
+    the local coordinates of x: the solid is built at the origin, rotated by ``rx``
+    about x, then ``ry`` about y, then ``rz`` about z (radians, R = Rz Ry Rx) and
+    then translated by ``t``.  Equal to :func:`superEll` with ``s1 = e1, s2 = e2``
+    when ``r = 0``.
+
+    Parameters
+    ----------
+    x : (..., 3) points.
+    e : (2,) exponents (e1 north-south, e2 east-west), > 0.
+    a : (3,) semi-axes.
+    r : (3,) rotation angles in radians about x, y, z.
+    t : (3,) translation (the center of the solid).
+
+    Returns
+    -------
+    (...) field values, >= 0 inside.
+
+    Examples
+    --------
+    >>> import math, torch
+    >>> p = torch.tensor([[1.0, 2.0, 0.0], [1.0, 0.0, 0.0]], dtype=torch.float64)
+    >>> f = superQuadric(p, e=(0.5, 0.5), a=(2.0, 1.0, 1.0), r=(0.0, 0.0, math.pi / 2), t=(1.0, 0.0, 0.0))
+    >>> f.round(decimals=12)
+    tensor([0., 1.], dtype=torch.float64)
+    """
+    ev = vec(e, x, n=2, name="e")
+    av = vec(a, x, name="a")
+    q = _euler_local(x, r, t)
+    return _super_ellipsoid(
+        q[..., 0] / av[..., 0], q[..., 1] / av[..., 1], q[..., 2] / av[..., 2], ev[..., 0], ev[..., 1]
+    )
+
+
+def _per_center(like: torch.Tensor, **values: Values) -> list[torch.Tensor]:
+    """The per-center arguments of a multi-center primitive as (K,) tensors on ``like``.
+
+    Floats become length-1 vectors (they broadcast); tensors keep their graph.
+    Raises ValueError naming the argument when the lengths disagree.
+    """
+    out, lengths = [], {}
+    for name, v in values.items():
+        if isinstance(v, torch.Tensor):
+            t = v.to(device=like.device, dtype=like.dtype)
+        elif isinstance(v, list | tuple) and any(isinstance(c, torch.Tensor) for c in v):
+            t = torch.stack([torch.as_tensor(c, dtype=like.dtype, device=like.device) for c in v])
+        else:
+            t = torch.as_tensor(np.asarray(v, dtype=np.float64), dtype=like.dtype, device=like.device)
+        t = t.reshape(-1) if t.ndim == 0 else t
+        if t.ndim != 1:
+            raise ValueError(f"{name} must be a number or a 1-D sequence, got shape {tuple(t.shape)}")
+        if t.shape[0] != 1:
+            lengths[name] = t.shape[0]
+        out.append(t)
+    if len(set(lengths.values())) > 1:
+        raise ValueError(f"per-center arguments have different lengths: {lengths}")
+    return out
+
+
+def _sq_dist_to_centers(x: torch.Tensor, x0: torch.Tensor, y0: torch.Tensor, z0: torch.Tensor) -> torch.Tensor:
+    """(..., K) squared distances from points (..., 3) to K centers."""
+    return (x[..., 0, None] - x0) ** 2 + (x[..., 1, None] - y0) ** 2 + (x[..., 2, None] - z0) ** 2
+
+
+@frep
+def blobby(x: torch.Tensor, x0: Values, y0: Values, z0: Values, a: Values, b: Values, T: float = 0.5) -> torch.Tensor:
+    """Blobby object (Blinn), HyperFun ``hfBlobby``: ``sum_i b_i exp(-a_i r_i^2) - T``.
+
+    Parameters
+    ----------
+    x : (..., 3) points.
+    x0, y0, z0 : (K,) coordinates of the K centers.
+    a : (K,) decay rates (> 0), or one number for all.
+    b : (K,) weights, or one number for all.
+    T : threshold.
+
+    Returns
+    -------
+    (...) field values, >= 0 inside.
+
+    Examples
+    --------
+    >>> import math, torch
+    >>> p = torch.tensor([[0.0, 0.0, 0.0], [math.sqrt(math.log(2.0)), 0.0, 0.0]], dtype=torch.float64)
+    >>> blobby(p, x0=[0.0], y0=[0.0], z0=[0.0], a=[1.0], b=[1.0], T=0.5)
+    tensor([0.5000, 0.0000], dtype=torch.float64)
+    """
+    x0, y0, z0, a, b = _per_center(x, x0=x0, y0=y0, z0=z0, a=a, b=b)
+    return (b * torch.exp(-a * _sq_dist_to_centers(x, x0, y0, z0))).sum(-1) - T
+
+
+@frep
+def metaBall(x: torch.Tensor, x0: Values, y0: Values, z0: Values, b: Values, d: Values, T: float = 0.5) -> torch.Tensor:
+    """Metaballs (Nishimura), HyperFun ``hfMetaBall``: ``sum_i m_i(r_i) - T``.
+
+    With r the distance to center i, ``m(r) = b (1 - 3 r^2 / d^2)`` for r <= d/3,
+    ``1.5 b (1 - r/d)^2`` for d/3 < r <= d and 0 beyond (C^1, compact support d).
+
+    Parameters
+    ----------
+    x : (..., 3) points.
+    x0, y0, z0 : (K,) coordinates of the K centers.
+    b : (K,) weights, or one number for all.
+    d : (K,) radii of influence (> 0), or one number for all.
+    T : threshold.
+
+    Returns
+    -------
+    (...) field values, >= 0 inside.
+
+    Examples
+    --------
+    >>> import torch
+    >>> p = torch.tensor([[0.0, 0.0, 0.0], [0.5, 0.0, 0.0], [2.0, 0.0, 0.0]], dtype=torch.float64)
+    >>> metaBall(p, x0=[0.0], y0=[0.0], z0=[0.0], b=[1.0], d=[1.0], T=0.375)
+    tensor([ 0.6250,  0.0000, -0.3750], dtype=torch.float64)
+    """
+    x0, y0, z0, b, d = _per_center(x, x0=x0, y0=y0, z0=z0, b=b, d=d)
+    r2 = _sq_dist_to_centers(x, x0, y0, z0)
+    r = safe_sqrt(r2)
+    inner = b * (1.0 - 3.0 * r2 / (d * d))
+    outer = 1.5 * b * torch.clamp(1.0 - r / d, min=0.0) ** 2  # 0 beyond d
+    return torch.where(3.0 * r <= d, inner, outer).sum(-1) - T
+
+
+@frep
+def soft(x: torch.Tensor, x0: Values, y0: Values, z0: Values, d: Values, T: float = 0.5) -> torch.Tensor:
+    """Soft objects (Wyvill), HyperFun ``hfSoft``: ``sum_i w(r_i) - T``.
+
+    ``w(r) = 1 - 22 r^2 / (9 d^2) + 17 r^4 / (9 d^4) - 4 r^6 / (9 d^6)`` for r <= d and 0
+    beyond (w(d) = 0, so the sum is continuous; C^1).
+
+    Parameters
+    ----------
+    x : (..., 3) points.
+    x0, y0, z0 : (K,) coordinates of the K centers.
+    d : (K,) radii of influence (> 0), or one number for all.
+    T : threshold.
+
+    Returns
+    -------
+    (...) field values, >= 0 inside.
+
+    Examples
+    --------
+    >>> import torch
+    >>> p = torch.tensor([[0.0, 0.0, 0.0], [0.0, 0.0, 1.0], [3.0, 0.0, 0.0]], dtype=torch.float64)
+    >>> soft(p, x0=[0.0], y0=[0.0], z0=[0.0], d=[1.0], T=0.5)
+    tensor([ 0.5000, -0.5000, -0.5000], dtype=torch.float64)
+    """
+    x0, y0, z0, d = _per_center(x, x0=x0, y0=y0, z0=z0, d=d)
+    q = _sq_dist_to_centers(x, x0, y0, z0) / (d * d)  # (r/d)^2
+    w = 1.0 - 22.0 / 9.0 * q + 17.0 / 9.0 * q * q - 4.0 / 9.0 * q * q * q
+    return torch.where(q <= 1.0, w, torch.zeros_like(w)).sum(-1) - T
+
+
+@frep
+def noiseG(x: torch.Tensor, amp: float = 1.0, freq: float = 1.0, phase: float = 0.0) -> torch.Tensor:
+    """Deterministic "noise" of HyperFun's ``hfNoiseG``: a product of perturbed sines.
+
+    With ``X = freq x`` (Y, Z likewise) and ``h(X, W) = amp sin X + amp/1.17 sin(X/1.35 + phase sin W)``,
+    the value is ``h(X, Z) h(Y, X) h(Z, Y)``.  Not a solid by itself: add it to a
+    defining function to roughen its surface (``sphere(x) + noiseG(x, 0.1, 8, 1)``).
+
+    Parameters
+    ----------
+    x : (..., 3) points.
+    amp : amplitude.
+    freq : angular frequency (radians per length unit).
+    phase : phase-coupling strength.
+
+    Returns
+    -------
+    (...) values with ``|value| <= (|amp| (1 + 1/1.17))^3``.
+
+    Examples
+    --------
+    >>> import math, torch
+    >>> noiseG(torch.tensor([[0.0, 1.0, 2.0], [math.pi / 2, math.pi / 2, math.pi / 2]]), amp=1.0, freq=1.0, phase=0.0)
+    tensor([0.0000, 5.6855])
+    """
+    sx, sy, sz = (torch.sin(freq * x[..., i]) for i in range(3))
+
+    def series(coordinate: torch.Tensor, coupled_sine: torch.Tensor) -> torch.Tensor:
+        return amp * torch.sin(freq * coordinate) + amp / 1.17 * torch.sin(
+            freq * coordinate / 1.35 + phase * coupled_sine
+        )
+
+    # each coordinate's second sine is shifted by the sine of another one: x by z, y by x, z by y
+    return series(x[..., 0], sz) * series(x[..., 1], sx) * series(x[..., 2], sy)

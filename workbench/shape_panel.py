@@ -1,0 +1,301 @@
+"""Shape panel: one slider per declared parameter, the surface re-meshed live in one 3-D view.
+
+Journey 1 of ARCHITECTURE.md: slider -> ``polygonize(model(., **params))`` -> points/faces replaced
+in the view's one PolyData -> render.  Meshing runs on a background thread that only ever builds
+the newest request (moves made meanwhile are coalesced); while a slider is dragged the mesh is
+built at ``preview_resolution`` and, once it rests for ``settle`` seconds, at full resolution.
+The surface is coloured by the normal velocity of the parameter last moved
+(:func:`pyfrep_core.sensitivity.normal_velocity`), on a diverging map centred on 0.
+"""
+
+from __future__ import annotations
+
+import ast
+import base64
+import html
+import os
+import time
+import warnings
+from typing import Any
+
+import ipywidgets as widgets
+import numpy as np
+
+from pyfrep_core import Mesh, Model, polygonize
+from pyfrep_core.model import check_bounds
+from pyfrep_core.sensitivity import normal_velocity
+
+from ._threads import LatestWorker, MainThread
+from .view import MeshView
+
+__all__ = ["ShapePanel", "shape_panel", "param_slider"]
+
+RESOLUTIONS = (32, 48, 64, 96, 128, 160, 192, 256)
+COLOURINGS = ("sensitivity", "plain")
+
+
+def param_slider(name: str, param: Any, value: float | None = None) -> widgets.FloatSlider:
+    """A slider for one declared ``Param``: its range, a step of range/200, its label."""
+    span = param.upper - param.lower
+    step = span / 200.0
+    decimals = max(0, int(np.ceil(-np.log10(step))) + 1) if step < 1 else 0
+    return widgets.FloatSlider(
+        value=param.default if value is None else value,
+        min=param.lower,
+        max=param.upper,
+        step=step,
+        description=param.label or name,
+        readout_format=f".{decimals}f",
+        continuous_update=True,
+        style={"description_width": "110px"},
+        layout=widgets.Layout(width="340px"),
+    )
+
+
+def _format_bounds(bounds: Any) -> str:
+    lo, hi = bounds
+    return f"({', '.join(f'{v:g}' for v in lo)}), ({', '.join(f'{v:g}' for v in hi)})"
+
+
+class ShapePanel(widgets.VBox):
+    """Sliders, resolution and bounds controls, a live 3-D view, export and reset.
+
+    Parameters
+    ----------
+    model : a pyfrep_core ``Model`` of dimension 3 with declared parameters.
+    resolution : grid samples per axis of the full-resolution mesh.
+    preview_resolution : samples per axis while a slider moves (None: always full).
+    bounds : meshing box; default the model's bounds.
+    backend : 3-D view backend ("auto", "trame", "image").
+    threaded : mesh on a background thread; default: when a kernel's loop runs (notebooks, Voila).
+    settle : seconds a slider must rest before the full-resolution mesh replaces the preview.
+
+    Attributes
+    ----------
+    sliders : dict name -> FloatSlider.   view : :class:`MeshView`.   mesh : the Mesh shown.
+    status : HTML status line ("remeshed in X ms, N triangles").
+    """
+
+    def __init__(
+        self,
+        model: Model,
+        resolution: int = 128,
+        preview_resolution: int | None = 64,
+        bounds: Any = None,
+        backend: str = "auto",
+        threaded: bool | None = None,
+        settle: float = 0.35,
+        colouring: str = "sensitivity",
+        size: tuple[int, int] = (640, 480),
+        export_dir: str = ".",
+    ):
+        if not isinstance(model, Model):
+            raise TypeError(f"model must be a pyfrep_core Model (declared with @model), got {type(model).__name__}")
+        if model.dim != 3:
+            raise ValueError(f"the shape panel meshes 3-D models; {model.__name__} has dim={model.dim}")
+        bounds = check_bounds(bounds if bounds is not None else model.bounds, 3)
+        self.model = model
+        self.main = MainThread()
+        self.threaded = self.main.has_loop if threaded is None else threaded
+        self.preview_resolution = preview_resolution
+        self.export_dir = export_dir
+        self.mesh: Mesh | None = None
+        self.scalars: np.ndarray | None = None
+        self.last_moved: str | None = model.names[0] if model.names else None
+        self.remesh_count = 0
+        self.last_remesh_s = 0.0
+        self.last_job: dict[str, Any] | None = None
+        self._quiet = False
+
+        self.sliders = {name: param_slider(name, p) for name, p in model.params.items()}
+        self.resolution = widgets.Dropdown(
+            options=sorted({*RESOLUTIONS, int(resolution)}),
+            value=int(resolution),
+            description="resolution",
+            layout=widgets.Layout(width="200px"),
+        )
+        self.bounds = widgets.Text(
+            value=_format_bounds(bounds),
+            description="bounds",
+            continuous_update=False,
+            layout=widgets.Layout(width="340px"),
+        )
+        self.colouring = widgets.Dropdown(
+            options=COLOURINGS, value=colouring, description="colour", layout=widgets.Layout(width="200px")
+        )
+        self.export_format = widgets.Dropdown(
+            options=("stl", "obj", "ply"), value="stl", layout=widgets.Layout(width="70px")
+        )
+        self.export_button = widgets.Button(description="Export", icon="download", layout=widgets.Layout(width="100px"))
+        self.reset_button = widgets.Button(description="Reset", icon="undo", layout=widgets.Layout(width="100px"))
+        self.status = widgets.HTML(value="meshing...")
+        self.download = widgets.HTML(value="")
+        self.view = MeshView(backend=backend, size=size)
+        self._bounds_value = bounds
+        self.worker = LatestWorker(self._build, self._show, self.main, settle=settle)
+
+        for name, slider in self.sliders.items():
+            slider.observe(lambda change, name=name: self._moved(name), names="value")
+        self.resolution.observe(lambda _: self.request(), names="value")
+        self.bounds.observe(self._bounds_changed, names="value")
+        self.colouring.observe(lambda _: self.request(), names="value")
+        self.export_button.on_click(lambda _: self.export())
+        self.reset_button.on_click(lambda _: self.reset())
+
+        legend = widgets.HTML(
+            "<small>colour = normal velocity v = -(&part;f/&part;p)/|&nabla;f| of the last parameter moved: "
+            "red moves into the solid, blue outward (units per unit of p)</small>",
+            layout=widgets.Layout(width="340px"),
+        )
+        controls = widgets.VBox(
+            [
+                widgets.HTML(f"<b>{html.escape(model.__name__)}</b>"),
+                *self.sliders.values(),
+                self.resolution,
+                self.bounds,
+                self.colouring,
+                legend,
+                widgets.HBox([self.export_format, self.export_button, self.reset_button]),
+                self.download,
+            ],
+            layout=widgets.Layout(width="360px"),
+        )
+        super().__init__([widgets.HBox([controls, self.view.widget]), self.status])
+        self.request(full=True)
+
+    # -- requests ------------------------------------------------------------------------
+    @property
+    def params(self) -> dict[str, float]:
+        """Current slider values."""
+        return {name: float(s.value) for name, s in self.sliders.items()}
+
+    def _moved(self, name: str) -> None:
+        if self._quiet:
+            return
+        self.last_moved = name
+        self.request()
+
+    def _bounds_changed(self, change: dict) -> None:
+        try:
+            value = ast.literal_eval(change["new"])
+            self._bounds_value = check_bounds(value, 3)
+        except (ValueError, SyntaxError, TypeError) as err:
+            self.status.value = f"<span style='color:#b00'>bounds not accepted: {html.escape(str(err))}</span>"
+            return
+        self.request()
+
+    def request(self, full: bool = False) -> None:
+        """Ask for a new mesh of the current state (coalesced with requests not yet started)."""
+        res = int(self.resolution.value)
+        job = {
+            "params": self.params,
+            "resolution": res,
+            "bounds": self._bounds_value,
+            "moved": self.last_moved,
+            "colouring": self.colouring.value,
+        }
+        if not self.threaded:
+            self._show(job, *self._run_inline(job))
+            return
+        preview = self.preview_resolution
+        if full or preview is None or preview >= res:
+            self.worker.submit(job)
+        else:
+            self.worker.submit({**job, "resolution": int(preview)}, followup=job)
+
+    def _run_inline(self, job: dict) -> tuple[Any, Exception | None]:
+        try:
+            return self._build(job), None
+        except Exception as err:
+            return None, err
+
+    def wait(self, timeout: float = 120.0) -> None:
+        """Block until the requested meshes are built and shown (scripts and tests)."""
+        self.worker.wait(timeout)
+
+    # -- work (background thread) ------------------------------------------------------------
+    def _build(self, job: dict) -> dict:
+        t0 = time.perf_counter()
+        params = job["params"]
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            mesh = polygonize(lambda x: self.model(x, **params), job["bounds"], job["resolution"])
+        scalars = None
+        if job["colouring"] == "sensitivity" and job["moved"] is not None and not mesh.is_empty():
+            scalars = normal_velocity(self.model, mesh.vertices, job["moved"], params)
+        note = "; ".join(str(w.message) for w in caught)
+        return {"mesh": mesh, "scalars": scalars, "seconds": time.perf_counter() - t0, "note": note}
+
+    # -- display (main thread) -------------------------------------------------------------
+    def _show(self, job: dict, result: dict | None, error: Exception | None) -> None:
+        if error is not None:
+            self.status.value = (
+                f"<span style='color:#b00'>{html.escape(type(error).__name__)}: {html.escape(str(error))}</span>"
+            )
+            return
+        mesh, scalars = result["mesh"], result["scalars"]
+        self.mesh, self.scalars, self.last_job = mesh, scalars, job
+        title = ""
+        clim = None
+        if scalars is not None:
+            top = float(np.max(np.abs(scalars))) if scalars.size else 0.0
+            top = top if top > 0 else 1.0
+            clim = (-top, top)  # diverging map centred on 0
+            title = f"v ({job['moved']})"
+        self.view.update(mesh, scalars=scalars, title=title, cmap="coolwarm", clim=clim)
+        self.remesh_count += 1
+        self.last_remesh_s = result["seconds"]
+        values = ", ".join(f"{k} = {v:.4g}" for k, v in job["params"].items())
+        extra = f" <span style='color:#a60'>({html.escape(result['note'])})</span>" if result["note"] else ""
+        self.status.value = (
+            f"remeshed in {1000 * result['seconds']:.0f} ms, {mesh.n_faces} triangles "
+            f"({job['resolution']}&sup3;; {values}); view {1000 * self.view.last_render_s:.0f} ms{extra}"
+        )
+
+    # -- buttons ------------------------------------------------------------------------------
+    def reset(self) -> None:
+        """Parameters back to their declared defaults (one remesh)."""
+        self._quiet = True
+        try:
+            for name, slider in self.sliders.items():
+                slider.value = self.model.params[name].default
+        finally:
+            self._quiet = False
+        self.request(full=True)
+
+    def export(self, path: str | None = None) -> str:
+        """Write the shown mesh as STL/OBJ/PLY; returns the path and offers a download link."""
+        if self.mesh is None or self.mesh.is_empty():
+            self.status.value = "<span style='color:#b00'>nothing to export yet</span>"
+            return ""
+        fmt = self.export_format.value
+        if path is None:
+            path = os.path.join(self.export_dir, f"{self.model.__name__}.{fmt}")
+        save = getattr(self.mesh, "save", None)
+        if callable(save):
+            save(path)
+        else:
+            self.mesh.to_pyvista().save(path)
+        with open(path, "rb") as fh:
+            data = base64.b64encode(fh.read()).decode("ascii")
+        name = os.path.basename(path)
+        self.download.value = (
+            f"<a download='{html.escape(name)}' href='data:application/octet-stream;base64,{data}'>"
+            f"download {html.escape(name)}</a> (saved to {html.escape(path)})"
+        )
+        return path
+
+
+def shape_panel(model: Model, **kwargs: Any) -> ShapePanel:
+    """The shape panel for any parametric model: ``workbench.shape_panel(my_model)``.
+
+    Examples
+    --------
+    >>> from pyfrep_core.models import fig1_part
+    >>> panel = shape_panel(fig1_part, resolution=32, backend="image", threaded=False)
+    >>> panel.sliders["r"].value = 0.35  # Fig. 2, left
+    >>> panel.status.value.startswith("remeshed in")
+    True
+    >>> panel.view.close()
+    """
+    return ShapePanel(model, **kwargs)

@@ -1,0 +1,210 @@
+"""The 3-D view: one pyvista Plotter and one PolyData, updated in place.
+
+``MeshView.widget`` is what a panel places in its layout:
+
+- backend ``"trame"``: the trame viewer (server-side rendering: no WebGL needed in the browser),
+  refreshed by ``plotter.render()``;
+- backend ``"image"``: an ``ipywidgets.Image`` holding the PNG of an off-screen render; works
+  with no trame and no WebGL (nbval, plain servers, tests).
+
+``"auto"`` takes ``$PYFREP_VIEW`` when set, else trame inside a running kernel when it imports,
+else the image.  Renders must happen on the main thread (STACK.md pitfall 2).
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import time
+from typing import Any
+
+import ipywidgets as widgets
+import numpy as np
+
+# EGL needs no X server; set before VTK creates its first window (STACK.md: saves ~1.5 s).
+os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
+
+import pyvista as pv  # noqa: E402
+
+__all__ = ["MeshView", "resolve_backend"]
+
+BACKENDS = ("trame", "image")
+
+
+def _in_kernel() -> bool:
+    try:
+        from IPython import get_ipython
+    except ImportError:
+        return False
+    shell = get_ipython()
+    return shell is not None and getattr(shell, "kernel", None) is not None
+
+
+def resolve_backend(backend: str = "auto") -> str:
+    """``"trame"`` or ``"image"``; ``"auto"`` reads ``$PYFREP_VIEW``, then probes for a kernel and trame."""
+    if backend == "auto":
+        backend = os.environ.get("PYFREP_VIEW", "auto").strip().lower() or "auto"
+    if backend == "auto":
+        if not _in_kernel():
+            return "image"
+        try:
+            import trame_pyvista  # noqa: F401  (pyvista's trame backends live there since 0.49)
+        except ImportError:
+            return "image"
+        return "trame"
+    if backend not in BACKENDS:
+        raise ValueError(f"backend must be 'auto', 'trame' or 'image', got {backend!r}")
+    return backend
+
+
+class MeshView:
+    """A 3-D view of one surface whose geometry and colouring are replaced in place.
+
+    Parameters
+    ----------
+    backend : "auto", "trame" or "image" (see module docstring).
+    size : window size in pixels (width, height).
+    color : surface colour when no scalars are shown.
+    """
+
+    def __init__(self, backend: str = "auto", size: tuple[int, int] = (640, 480), color: str = "#c8c8d2"):
+        self.backend = resolve_backend(backend)
+        self.size = size
+        self.color = color
+        self.plotter = pv.Plotter(off_screen=True, window_size=list(size))
+        self.plotter.set_background("white")
+        self.poly = pv.PolyData()
+        self.actor: Any = None
+        self.overlay_poly: pv.PolyData | None = None
+        self.overlay_actor: Any = None
+        self.renders = 0
+        self.last_render_s = 0.0
+        self.widget = self._make_widget()
+
+    def _make_widget(self) -> widgets.Widget:
+        if self.backend == "trame":
+            try:
+                import trame_pyvista  # noqa: F401
+
+                view = self.plotter.show(jupyter_backend="trame", return_viewer=True)
+                view.layout = widgets.Layout(width=f"{self.size[0]}px", height=f"{self.size[1] + 10}px")
+                return view
+            except Exception as err:  # no trame server possible here: fall back, say why
+                self.backend = "image"
+                self.fallback_reason = f"{type(err).__name__}: {err}"
+        return widgets.Image(format="png", layout=widgets.Layout(width=f"{self.size[0]}px"))
+
+    # -- geometry -----------------------------------------------------------------------
+    def update(
+        self,
+        mesh: Any,
+        scalars: np.ndarray | None = None,
+        title: str = "",
+        cmap: str = "coolwarm",
+        clim: tuple[float, float] | None = None,
+        reset_camera: bool = False,
+    ) -> None:
+        """Replace the surface with ``mesh`` (a pyfrep_core Mesh or a PolyData), coloured by ``scalars`` (V,)."""
+        new = mesh if isinstance(mesh, pv.PolyData) else mesh.to_pyvista()
+        new = new.copy(deep=False)
+        if scalars is not None:
+            new.point_data["values"] = np.asarray(scalars, dtype=np.float64)
+            new.set_active_scalars("values")
+        self.poly.shallow_copy(new)  # same PolyData object: the actor keeps its dataset
+        first = self.actor is None
+        if first and self.poly.n_points:
+            self.actor = self.plotter.add_mesh(
+                self.poly,
+                scalars="values" if scalars is not None else None,
+                color=self.color,
+                cmap=cmap,
+                smooth_shading=True,
+                show_scalar_bar=False,
+                name="surface",
+            )
+            self.plotter.add_axes()
+        if self.actor is not None:
+            self._colour(scalars, title, cmap, clim)
+        self.render(reset_camera=first or reset_camera)
+
+    def _colour(self, scalars: np.ndarray | None, title: str, cmap: str, clim: tuple[float, float] | None) -> None:
+        mapper = self.actor.mapper
+        if scalars is None or len(scalars) == 0:
+            mapper.scalar_visibility = False
+            self.actor.prop.color = self.color
+            if self.plotter.scalar_bars:
+                self.plotter.remove_scalar_bar()
+            return
+        mapper.scalar_visibility = True
+        mapper.SetScalarModeToUsePointFieldData()  # colour by the "values" array of the new geometry
+        mapper.SelectColorArray("values")
+        if clim is None:
+            clim = (float(np.min(scalars)), float(np.max(scalars)))
+        if clim[0] >= clim[1]:
+            clim = (clim[0] - 1e-12, clim[1] + 1e-12)
+        mapper.scalar_range = clim
+        mapper.lookup_table.cmap = cmap
+        mapper.lookup_table.scalar_range = clim
+        if self.plotter.scalar_bars:
+            self.plotter.remove_scalar_bar()
+        self.plotter.add_scalar_bar(title=title or " ", mapper=mapper, n_labels=5, fmt="%.3g", vertical=True)
+
+    def overlay_points(self, points: np.ndarray | None, scalars: np.ndarray | None = None, title: str = "") -> None:
+        """Show a point cloud (replaced in place), coloured by ``scalars``; None removes it."""
+        if points is None:
+            if self.overlay_actor is not None:
+                self.overlay_actor.visibility = False
+            return
+        cloud = pv.PolyData(np.asarray(points, dtype=np.float64))
+        if scalars is not None:
+            cloud.point_data["values"] = np.asarray(scalars, dtype=np.float64)
+        if self.overlay_poly is None:
+            self.overlay_poly = pv.PolyData()
+        self.overlay_poly.shallow_copy(cloud)
+        if self.overlay_actor is None:
+            self.overlay_actor = self.plotter.add_mesh(
+                self.overlay_poly,
+                scalars="values" if scalars is not None else None,
+                cmap="viridis",
+                point_size=5,
+                render_points_as_spheres=True,
+                color="#1f77b4",
+                name="cloud",
+                show_scalar_bar=False,
+            )
+        self.overlay_actor.visibility = True
+        if scalars is not None:
+            self.overlay_actor.mapper.scalar_visibility = True
+            lo, hi = float(np.min(scalars)), float(np.max(scalars))
+            self.overlay_actor.mapper.scalar_range = (lo, hi if hi > lo else lo + 1e-12)
+        if self.actor is None:
+            self.render(reset_camera=True)
+
+    def set_opacity(self, opacity: float) -> None:
+        if self.actor is not None:
+            self.actor.prop.opacity = opacity
+
+    # -- drawing ------------------------------------------------------------------------
+    def render(self, reset_camera: bool = False) -> None:
+        """Render on the calling (main) thread and push the frame to the widget."""
+        t0 = time.perf_counter()
+        if reset_camera:
+            self.plotter.view_isometric()
+            self.plotter.reset_camera()
+        self.plotter.render()  # the trame viewer listens to this render
+        if self.backend == "image":
+            self.widget.value = self.png()
+        self.renders += 1
+        self.last_render_s = time.perf_counter() - t0
+
+    def png(self) -> bytes:
+        """The current frame as PNG bytes."""
+        from PIL import Image
+
+        frame = self.plotter.screenshot(return_img=True)
+        buf = io.BytesIO()
+        Image.fromarray(frame).save(buf, format="png", compress_level=1)
+        return buf.getvalue()
+
+    def close(self) -> None:
+        self.plotter.close()

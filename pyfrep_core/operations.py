@@ -1,4 +1,4 @@
-"""Operations on defining functions: R-function Booleans, min/max, blends (paper section 3.1).
+"""Operations on defining functions: R-function Booleans, min/max, blends, offsets (paper section 3.1).
 
 All functions take field values ``f1, f2`` (tensors of any broadcastable shape, e.g. (N,))
 and return a tensor of the broadcast shape.  Convention: f >= 0 inside.
@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import torch
 
-from ._array import frep, safe_sqrt
+from ._array import Scalar, frep, safe_sqrt
 
 __all__ = [
     "union",
@@ -21,6 +21,13 @@ __all__ = [
     "union_min_max",
     "intersection_min_max",
     "difference_min_max",
+    "blendUnion",
+    "blendIntersection",
+    "blendDifference",
+    "boundBlendUnion",
+    "boundBlendIntersection",
+    "offset",
+    "shell",
 ]
 
 
@@ -154,3 +161,221 @@ def difference_min_max(f1: torch.Tensor, f2: torch.Tensor) -> torch.Tensor:
     tensor([-2.])
     """
     return torch.minimum(f1, -f2)
+
+
+def _blend_displacement(f1: torch.Tensor, f2: torch.Tensor, a0: Scalar, a1: Scalar, a2: Scalar) -> torch.Tensor:
+    # Pasko's displacement a0 / (1 + (f1/a1)^2 + (f2/a2)^2): a0 at the edge f1 = f2 = 0, -> 0 away from it
+    return a0 / (1.0 + (f1 / a1) ** 2 + (f2 / a2) ** 2)
+
+
+@frep
+def blendUnion(
+    f1: torch.Tensor, f2: torch.Tensor, a0: Scalar = 1.0, a1: Scalar = 1.0, a2: Scalar = 1.0
+) -> torch.Tensor:
+    """Blending union (HyperFun ``hfBlendUni``): ``union(f1, f2) + a0 / (1 + (f1/a1)^2 + (f2/a2)^2)``.
+
+    The displacement adds material (a0 > 0) around the edge where both surfaces meet;
+    a1 and a2 set how far along each solid the blend reaches.
+
+    Parameters
+    ----------
+    f1, f2 : field values (broadcastable shapes, e.g. (N,)).
+    a0 : blend amplitude (> 0 adds material).
+    a1, a2 : blend extents along f1 and f2 (non-zero, in field units).
+
+    Returns
+    -------
+    field values of the broadcast shape.
+
+    Examples
+    --------
+    >>> import torch
+    >>> blendUnion(torch.tensor([0.0, 3.0]), torch.tensor([0.0, -4.0]), a0=1.0, a1=1.0, a2=2.0)
+    tensor([1.0000, 4.0714])
+    """
+    return union(f1, f2) + _blend_displacement(f1, f2, a0, a1, a2)
+
+
+@frep
+def blendIntersection(
+    f1: torch.Tensor, f2: torch.Tensor, a0: Scalar = 1.0, a1: Scalar = 1.0, a2: Scalar = 1.0
+) -> torch.Tensor:
+    """Blending intersection (HyperFun ``hfBlendInt``): ``intersection(f1, f2) + a0 / (1 + (f1/a1)^2 + (f2/a2)^2)``.
+
+    Same sign convention as HyperFun: a0 > 0 adds material along the edge (fills a
+    concave crease), a0 < 0 removes material (rounds a convex edge).
+
+    Parameters
+    ----------
+    f1, f2 : field values (broadcastable shapes, e.g. (N,)).
+    a0 : blend amplitude.
+    a1, a2 : blend extents along f1 and f2 (non-zero).
+
+    Returns
+    -------
+    field values of the broadcast shape.
+
+    Examples
+    --------
+    >>> import torch
+    >>> blendIntersection(torch.tensor([0.0, 3.0]), torch.tensor([0.0, 4.0]), a0=-1.0, a1=1.0, a2=1.0)
+    tensor([-1.0000,  1.9615])
+    """
+    return intersection(f1, f2) + _blend_displacement(f1, f2, a0, a1, a2)
+
+
+@frep
+def blendDifference(
+    f1: torch.Tensor, f2: torch.Tensor, a0: Scalar = 1.0, a1: Scalar = 1.0, a2: Scalar = 1.0
+) -> torch.Tensor:
+    """Blending difference: ``blendIntersection(f1, -f2, a0, a1, a2)``.
+
+    Parameters
+    ----------
+    f1, f2 : field values (broadcastable shapes); the solid of f2 is removed from f1's.
+    a0 : blend amplitude (> 0 adds material along the edge, < 0 rounds it off).
+    a1, a2 : blend extents along f1 and f2 (non-zero).
+
+    Returns
+    -------
+    field values of the broadcast shape.
+
+    Examples
+    --------
+    >>> import torch
+    >>> blendDifference(torch.tensor([3.0]), torch.tensor([-4.0]), a0=-1.0)
+    tensor([1.9615])
+    """
+    return blendIntersection(f1, -f2, a0, a1, a2)
+
+
+def _bounded_displacement(
+    f1: torch.Tensor, f2: torch.Tensor, f3: torch.Tensor, a0: Scalar, a1: Scalar, a2: Scalar, a3: Scalar
+) -> torch.Tensor:
+    # bounded blending (Pasko et al.): r1 = (f1/a1)^2 + (f2/a2)^2, r2 = (f3+/a3)^2, r = r1 / (r1 + r2),
+    # displacement a0 (1 - r)^3 / (1 + r): a0 on the edge, 0 wherever the bounding solid f3 < 0
+    r1 = (f1 / a1) ** 2 + (f2 / a2) ** 2
+    r2 = (torch.clamp(f3, min=0.0) / a3) ** 2
+    total = r1 + r2
+    has = total > 0
+    r = torch.where(has, r1 / torch.where(has, total, torch.ones_like(total)), torch.zeros_like(total))
+    return a0 * (1.0 - r) ** 3 / (1.0 + r)
+
+
+@frep
+def boundBlendUnion(
+    f1: torch.Tensor,
+    f2: torch.Tensor,
+    f3: torch.Tensor,
+    a0: Scalar = 1.0,
+    a1: Scalar = 1.0,
+    a2: Scalar = 1.0,
+    a3: Scalar = 1.0,
+) -> torch.Tensor:
+    """Bounded blending union: the blend of :func:`blendUnion` confined to a bounding solid f3.
+
+    ``union(f1, f2) + a0 (1 - r)^3 / (1 + r)`` with ``r1 = (f1/a1)^2 + (f2/a2)^2``,
+    ``r2 = (max(f3, 0)/a3)^2`` and ``r = r1 / (r1 + r2)`` (0 where both vanish).  Outside
+    the bounding solid (f3 <= 0) r = 1 and the result is the plain R-union; inside it the
+    blend fades from a0 on the edge with ``a3`` setting how fast f3 lets it grow.
+
+    Parameters
+    ----------
+    f1, f2 : field values of the two solids (broadcastable shapes).
+    f3 : field values of the bounding solid.
+    a0 : blend amplitude.
+    a1, a2, a3 : extents along f1, f2 and f3 (non-zero).
+
+    Returns
+    -------
+    field values of the broadcast shape.
+
+    Examples
+    --------
+    >>> import torch
+    >>> f1, f2 = torch.tensor([1.0, 1.0]), torch.tensor([0.0, 0.0])
+    >>> boundBlendUnion(f1, f2, torch.tensor([-1.0, 1.0]), a0=1.0)  # outside f3: plain union (2); inside: blended
+    tensor([2.0000, 2.0833])
+    """
+    return union(f1, f2) + _bounded_displacement(f1, f2, f3, a0, a1, a2, a3)
+
+
+@frep
+def boundBlendIntersection(
+    f1: torch.Tensor,
+    f2: torch.Tensor,
+    f3: torch.Tensor,
+    a0: Scalar = 1.0,
+    a1: Scalar = 1.0,
+    a2: Scalar = 1.0,
+    a3: Scalar = 1.0,
+) -> torch.Tensor:
+    """Bounded blending intersection: :func:`boundBlendUnion`'s displacement on the R-intersection.
+
+    a0 > 0 adds material along the edge inside the bounding solid f3, a0 < 0 removes it.
+
+    Parameters
+    ----------
+    f1, f2 : field values of the two solids (broadcastable shapes).
+    f3 : field values of the bounding solid.
+    a0 : blend amplitude.
+    a1, a2, a3 : extents along f1, f2 and f3 (non-zero).
+
+    Returns
+    -------
+    field values of the broadcast shape.
+
+    Examples
+    --------
+    >>> import torch
+    >>> boundBlendIntersection(torch.tensor([0.0, 0.0]), torch.tensor([0.0, 0.0]), torch.tensor([-1.0, 1.0]), a0=-0.5)
+    tensor([-0.5000, -0.5000])
+    """
+    return intersection(f1, f2) + _bounded_displacement(f1, f2, f3, a0, a1, a2, a3)
+
+
+@frep
+def offset(f: torch.Tensor, d: Scalar) -> torch.Tensor:
+    """Offset: ``f + d``; the solid grows (d > 0) or shrinks (d < 0) to the level set f = -d.
+
+    For a distance field this is an exact offset by d; for a general F-rep field the
+    new surface is the level set ``f = -d`` (a uniform offset only where |grad f| = 1).
+
+    Parameters
+    ----------
+    f : field values.
+    d : offset in field units.
+
+    Returns
+    -------
+    field values of f's shape.
+
+    Examples
+    --------
+    >>> import torch
+    >>> offset(torch.tensor([-0.25, 0.5]), 0.25)
+    tensor([0.0000, 0.7500])
+    """
+    return f + d
+
+
+@frep
+def shell(f: torch.Tensor, thickness: Scalar) -> torch.Tensor:
+    """Shell (hollowing): the layer ``-t <= f <= t``, as ``intersection(f + t, t - f)``.
+
+    Parameters
+    ----------
+    f : field values.
+    thickness : half-thickness ``t`` of the layer in field units (> 0).
+
+    Returns
+    -------
+    field values of f's shape, >= 0 inside the layer.
+
+    Examples
+    --------
+    >>> import torch
+    >>> shell(torch.tensor([0.0, 0.1, 1.0, -1.0]), 0.1)
+    tensor([ 0.0586,  0.0000, -1.2213, -1.2213])
+    """
+    return intersection(f + thickness, thickness - f)

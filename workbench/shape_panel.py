@@ -28,7 +28,7 @@ from pyfrep_core.sensitivity import normal_velocity
 from ._threads import LatestWorker, MainThread
 from .view import MeshView
 
-__all__ = ["ShapePanel", "shape_panel", "param_slider"]
+__all__ = ["ShapePanel", "paper_shape_panel", "param_slider", "shape_panel"]
 
 RESOLUTIONS = (32, 48, 64, 96, 128, 160, 192, 256)
 COLOURINGS = ("sensitivity", "plain")
@@ -88,6 +88,7 @@ class ShapePanel(widgets.VBox):
         colouring: str = "sensitivity",
         size: tuple[int, int] = (640, 480),
         export_dir: str = ".",
+        choices: dict[str, Model] | None = None,
     ):
         if not isinstance(model, Model):
             raise TypeError(f"model must be a pyfrep_core Model (declared with @model), got {type(model).__name__}")
@@ -107,7 +108,16 @@ class ShapePanel(widgets.VBox):
         self.last_job: dict[str, Any] | None = None
         self._quiet = False
 
-        self.sliders = {name: param_slider(name, p) for name, p in model.params.items()}
+        self.sliders: dict[str, widgets.FloatSlider] = {}
+        self.slider_box = widgets.VBox()
+        self.title = widgets.HTML()
+        self.choices = {model.__name__: model, **(choices or {})}
+        self.choice = widgets.Dropdown(
+            options=list(self.choices),
+            value=model.__name__,
+            description="model",
+            layout=widgets.Layout(width="340px", display="flex" if choices else "none"),
+        )
         self.resolution = widgets.Dropdown(
             options=sorted({*RESOLUTIONS, int(resolution)}),
             value=int(resolution),
@@ -134,8 +144,8 @@ class ShapePanel(widgets.VBox):
         self._bounds_value = bounds
         self.worker = LatestWorker(self._build, self._show, self.main, settle=settle)
 
-        for name, slider in self.sliders.items():
-            slider.observe(lambda change, name=name: self._moved(name), names="value")
+        self._make_sliders(model)
+        self.choice.observe(lambda change: self.set_model(self.choices[change["new"]]), names="value")
         self.resolution.observe(lambda _: self.request(), names="value")
         self.bounds.observe(self._bounds_changed, names="value")
         self.colouring.observe(lambda _: self.request(), names="value")
@@ -149,8 +159,9 @@ class ShapePanel(widgets.VBox):
         )
         controls = widgets.VBox(
             [
-                widgets.HTML(f"<b>{html.escape(model.__name__)}</b>"),
-                *self.sliders.values(),
+                self.choice,
+                self.title,
+                self.slider_box,
                 self.resolution,
                 self.bounds,
                 self.colouring,
@@ -161,7 +172,30 @@ class ShapePanel(widgets.VBox):
             layout=widgets.Layout(width="360px"),
         )
         super().__init__([widgets.HBox([controls, self.view.widget]), self.status])
-        self.request(full=True)
+        self.request()
+
+    def _make_sliders(self, model: Model) -> None:
+        self.sliders = {name: param_slider(name, p) for name, p in model.params.items()}
+        for name, slider in self.sliders.items():
+            slider.observe(lambda change, name=name: self._moved(name), names="value")
+        self.slider_box.children = tuple(self.sliders.values())
+        doc = (model.__doc__ or "").strip().split("\n")[0].replace("``", "")
+        self.title.value = f"<b>{html.escape(model.__name__)}</b> <small>{html.escape(doc)}</small>"
+
+    def set_model(self, model: Model, bounds: Any = None) -> None:
+        """Show another model in the same view (new sliders, its bounds, camera reset)."""
+        if not isinstance(model, Model) or model.dim != 3:
+            raise ValueError(f"the shape panel needs a 3-D Model, got {model!r}")
+        self.model = model
+        self.last_moved = model.names[0] if model.names else None
+        self._make_sliders(model)
+        self._bounds_value = check_bounds(bounds if bounds is not None else model.bounds, 3)
+        self._quiet = True
+        try:
+            self.bounds.value = _format_bounds(self._bounds_value)
+        finally:
+            self._quiet = False
+        self.request(reset_camera=True)
 
     # -- requests ------------------------------------------------------------------------
     @property
@@ -176,6 +210,8 @@ class ShapePanel(widgets.VBox):
         self.request()
 
     def _bounds_changed(self, change: dict) -> None:
+        if self._quiet:
+            return
         try:
             value = ast.literal_eval(change["new"])
             self._bounds_value = check_bounds(value, 3)
@@ -184,7 +220,7 @@ class ShapePanel(widgets.VBox):
             return
         self.request()
 
-    def request(self, full: bool = False) -> None:
+    def request(self, full: bool = False, reset_camera: bool = False) -> None:
         """Ask for a new mesh of the current state (coalesced with requests not yet started)."""
         res = int(self.resolution.value)
         job = {
@@ -193,6 +229,7 @@ class ShapePanel(widgets.VBox):
             "bounds": self._bounds_value,
             "moved": self.last_moved,
             "colouring": self.colouring.value,
+            "reset_camera": reset_camera,
         }
         if not self.threaded:
             self._show(job, *self._run_inline(job))
@@ -242,7 +279,9 @@ class ShapePanel(widgets.VBox):
             top = top if top > 0 else 1.0
             clim = (-top, top)  # diverging map centred on 0
             title = f"v ({job['moved']})"
-        self.view.update(mesh, scalars=scalars, title=title, cmap="coolwarm", clim=clim)
+        self.view.update(
+            mesh, scalars=scalars, title=title, cmap="coolwarm", clim=clim, reset_camera=job["reset_camera"]
+        )
         self.remesh_count += 1
         self.last_remesh_s = result["seconds"]
         values = ", ".join(f"{k} = {v:.4g}" for k, v in job["params"].items())
@@ -261,7 +300,7 @@ class ShapePanel(widgets.VBox):
                 slider.value = self.model.params[name].default
         finally:
             self._quiet = False
-        self.request(full=True)
+        self.request()
 
     def export(self, path: str | None = None) -> str:
         """Write the shown mesh as STL/OBJ/PLY; returns the path and offers a download link."""
@@ -284,6 +323,15 @@ class ShapePanel(widgets.VBox):
             f"download {html.escape(name)}</a> (saved to {html.escape(path)})"
         )
         return path
+
+
+def paper_shape_panel(backend: str = "auto", **kwargs: Any) -> ShapePanel:
+    """The shape panel with a chooser of the paper's 3-D shapes (Fig. 1 part first)."""
+    from .app import paper_models
+
+    choices = paper_models(dim=3)
+    first = next(iter(choices.values()))
+    return ShapePanel(first, backend=backend, choices=choices, **kwargs)
 
 
 def shape_panel(model: Model, **kwargs: Any) -> ShapePanel:

@@ -20,6 +20,7 @@ derivatives with respect to points and shape parameters.
 tensor([ True, False])
 """
 
+from . import sdf
 from .diff import grad, project_to_surface, value_and_grad
 from .lattices import *  # noqa: F403
 from .lattices import __all__ as _lattices_all
@@ -46,6 +47,7 @@ __all__ = [
     "model",
     "polygonize",
     "project_to_surface",
+    "sdf",
     "value_and_grad",
     *_lattices_all,
     *_operations_all,

@@ -173,10 +173,15 @@ class MeshView:
                 show_scalar_bar=False,
             )
         self.overlay_actor.visibility = True
+        mapper = self.overlay_actor.mapper
+        mapper.scalar_visibility = scalars is not None
         if scalars is not None:
-            self.overlay_actor.mapper.scalar_visibility = True
+            mapper.SetScalarModeToUsePointFieldData()
+            mapper.SelectColorArray("values")
             lo, hi = float(np.min(scalars)), float(np.max(scalars))
-            self.overlay_actor.mapper.scalar_range = (lo, hi if hi > lo else lo + 1e-12)
+            mapper.scalar_range = (lo, hi if hi > lo else lo + 1e-12)
+            mapper.lookup_table.cmap = "viridis"
+            mapper.lookup_table.scalar_range = mapper.scalar_range
         if self.actor is None:
             self.render(reset_camera=True)
 

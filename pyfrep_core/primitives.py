@@ -16,6 +16,7 @@ import torch
 
 from ._array import frep, safe_sqrt, vec
 from .operations import intersection
+from .transforms import rotate3DX, rotate3DY, rotate3DZ
 
 Center = tuple[float, float, float] | torch.Tensor
 Center2 = tuple[float, float] | torch.Tensor
@@ -609,8 +610,6 @@ def superEll(
 
 def _euler_local(x: torch.Tensor, r: Center, t: Center) -> torch.Tensor:
     """Local coordinates ``Rx(rx)^T Ry(ry)^T Rz(rz)^T (x - t)`` (the inverse of R = Rz Ry Rx, then + t)."""
-    from .transforms import rotate3DX, rotate3DY, rotate3DZ  # transforms imports nothing from here
-
     rv = vec(r, x, name="r")
     p = x - vec(t, x, name="t")
     return rotate3DX(rotate3DY(rotate3DZ(p, rv[..., 2]), rv[..., 1]), rv[..., 0])

@@ -18,11 +18,11 @@ Array = torch.Tensor | np.ndarray
 Scalar = float | torch.Tensor
 
 
-def _to_torch(value: Any) -> Any:
+def _to_torch(value: Any, device: torch.device | None = None) -> Any:
     if isinstance(value, np.ndarray):
         if value.dtype.kind in "iub":
             value = value.astype(np.float64)
-        return torch.from_numpy(np.ascontiguousarray(value))
+        return torch.from_numpy(np.ascontiguousarray(value)).to(device or "cpu")
     return value
 
 
@@ -41,27 +41,25 @@ def _back(value: Any) -> Any:
 def frep(fn: Callable) -> Callable:
     """Make a torch function accept numpy arrays and return numpy for numpy input.
 
-    Torch tensors pass through untouched (no copy, graph kept); the wrapper only
-    converts when a numpy array is among the arguments and no tensor is.
+    Torch tensors pass through untouched (no copy, graph kept).  Numpy arrays are converted;
+    the result goes back to numpy only when no tensor came in (a numpy point set with a
+    tensor parameter that requires grad gives a tensor, so the gradient is not lost).
     """
 
     @functools.wraps(fn)
     def wrapper(*args, **kwargs):
+        device = None
         has_numpy = False
-        for a in args:
+        for a in (*args, *kwargs.values()):
             if isinstance(a, torch.Tensor):
-                return fn(*args, **kwargs)
-            if isinstance(a, np.ndarray):
-                has_numpy = True
-        for a in kwargs.values():
-            if isinstance(a, torch.Tensor):
-                return fn(*args, **kwargs)
-            if isinstance(a, np.ndarray):
+                device = device or a.device
+            elif isinstance(a, np.ndarray):
                 has_numpy = True
         if not has_numpy:
             return fn(*args, **kwargs)
-        out = fn(*[_to_torch(a) for a in args], **{k: _to_torch(v) for k, v in kwargs.items()})
-        return _back(out)
+        # numpy beside a tensor (numpy points, a tensor parameter): compute in torch, return torch
+        out = fn(*[_to_torch(a, device) for a in args], **{k: _to_torch(v, device) for k, v in kwargs.items()})
+        return out if device is not None else _back(out)
 
     return wrapper
 

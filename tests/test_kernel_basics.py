@@ -104,3 +104,12 @@ def test_projection_reports_points_with_zero_gradient():
         proj = project_to_surface(lambda p: sphere(p, r=1.0), torch.zeros(1, 3, dtype=torch.float64))
     assert not bool(proj.converged[0])
     assert torch.equal(proj.points, torch.zeros(1, 3, dtype=torch.float64))
+
+
+def test_numpy_points_with_tensor_parameter_keep_the_gradient():
+    r = torch.tensor(0.5, dtype=torch.float64, requires_grad=True)
+    x = np.array([[0.1, 0.2, 0.3], [1.0, 0.0, 0.0]])
+    out = sphere(x, r=r)
+    assert isinstance(out, torch.Tensor)
+    out.sum().backward()
+    assert r.grad.item() == pytest.approx(2.0)  # d/dr (r^2 - |x|^2) = 2r, twice

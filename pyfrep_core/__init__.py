@@ -21,6 +21,8 @@ tensor([ True, False])
 """
 
 from . import sdf
+from .convolution import *  # noqa: F403
+from .convolution import __all__ as _convolution_all
 from .diff import grad, project_to_surface, value_and_grad
 from .lattices import *  # noqa: F403
 from .lattices import __all__ as _lattices_all
@@ -49,6 +51,7 @@ __all__ = [
     "project_to_surface",
     "sdf",
     "value_and_grad",
+    *_convolution_all,
     *_lattices_all,
     *_operations_all,
     *_periodic_all,

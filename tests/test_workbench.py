@@ -1,0 +1,234 @@
+"""Workbench panels without a browser: widgets driven from Python, off-screen image views."""
+
+from __future__ import annotations
+
+import importlib
+import time
+
+import numpy as np
+import pytest
+
+import workbench
+from pyfrep_core import Param, model, sphere
+from pyfrep_core.models import fig1_part
+from pyfrep_core.sensitivity import normal_velocity
+from workbench.app import App
+from workbench.shape_panel import shape_panel
+from workbench.view import resolve_backend
+
+# small, fast fit settings for the tests (the panel's "quick" effort is a bit larger)
+TINY_FIT = {"cycles": 60, "population_size": 20, "children": 10, "epochs": 2, "batch_size": 256, "polish_iters": 8}
+
+
+@pytest.fixture
+def panel():
+    p = shape_panel(fig1_part, resolution=40, backend="image", threaded=False)
+    yield p
+    p.view.close()
+
+
+def test_slider_remeshes_in_place_and_updates_status(panel):
+    poly = panel.view.poly
+    before_vertices = panel.mesh.vertices.copy()
+    before_png = panel.view.widget.value
+    count = panel.remesh_count
+    assert panel.status.value.startswith("remeshed in")
+    assert f"{panel.mesh.n_faces} triangles" in panel.status.value
+
+    panel.sliders["r"].value = 0.35  # Fig. 2, left
+    assert panel.remesh_count == count + 1
+    assert panel.view.poly is poly  # the one PolyData of the view, replaced in place
+    assert panel.view.poly.n_points == panel.mesh.n_vertices
+    assert panel.mesh.n_vertices != before_vertices.shape[0] or not np.allclose(panel.mesh.vertices, before_vertices)
+    assert "r = 0.35" in panel.status.value and f"{panel.mesh.n_faces} triangles" in panel.status.value
+    assert panel.view.widget.value != before_png  # the picture changed
+    # the new mesh is the surface at the new radius
+    assert np.abs(fig1_part(panel.mesh.vertices, r=0.35)).max() < 1e-9
+    # slider range, step and label come from the declaration
+    s, p = panel.sliders["r"], fig1_part.params["r"]
+    assert (s.min, s.max, s.description) == (p.lower, p.upper, p.label)
+    assert s.step == pytest.approx((p.upper - p.lower) / 200)
+
+
+def test_sensitivity_to_cylinder_radius_lives_on_the_cylinder_walls(panel):
+    r = 0.6
+    panel.sliders["r"].value = r
+    v, x = panel.scalars, panel.mesh.vertices
+    assert panel.last_moved == "r" and v.shape == (panel.mesh.n_vertices,)
+    radial = np.stack([np.hypot(x[:, 1], x[:, 2]), np.hypot(x[:, 0], x[:, 2]), np.hypot(x[:, 0], x[:, 1])])
+    wall_distance = np.abs(radial - r).min(axis=0)
+    moving = np.abs(v) > 1e-6
+    assert moving.sum() > 100  # the walls are there and they move
+    assert wall_distance[moving].max() < 1e-6  # ... and nothing else moves
+    # away from the edges, a wall moves into the solid at unit speed: v = -(-2r)/(2r) = 1
+    sphere_gap = 1 - np.linalg.norm(x, axis=1)
+    slab_gap = 0.75 - np.abs(x).max(axis=1)
+    clear = (wall_distance < 1e-9) & (sphere_gap > 0.05) & (slab_gap > 0.05)
+    assert clear.sum() > 50
+    np.testing.assert_allclose(v[clear], 1.0, atol=1e-9)
+    # the view is coloured by it on a map centred on zero
+    lo, hi = panel.view.actor.mapper.scalar_range
+    assert lo == pytest.approx(-hi) and hi == pytest.approx(np.abs(v).max())
+
+
+def test_normal_velocity_of_a_growing_sphere_is_minus_one_and_checks_names():
+    @model(r=Param(1.0, 0.5, 2.0))
+    def ball(x, r):
+        return sphere(x, r=r)
+
+    rng = np.random.default_rng(0)
+    d = rng.normal(size=(50, 3))
+    x = 1.3 * d / np.linalg.norm(d, axis=1, keepdims=True)
+    np.testing.assert_allclose(normal_velocity(ball, x, "r", {"r": 1.3}), -1.0, atol=1e-12)
+    with pytest.raises(ValueError, match="no parameter 'R'"):
+        normal_velocity(ball, x, "R")
+    with pytest.raises(ValueError, match="outside its range"):
+        normal_velocity(ball, x, "r", {"r": 5.0})
+
+
+def test_moves_during_a_build_are_coalesced_latest_wins():
+    p = shape_panel(fig1_part, resolution=32, preview_resolution=None, backend="image", threaded=True)
+    try:
+        p.wait()
+        start = p.remesh_count
+        values = np.linspace(0.3, 0.7, 12)
+        for v in values:
+            p.sliders["r"].value = float(v)
+        p.wait()
+        built = p.remesh_count - start
+        assert 1 <= built < len(values)  # no backlog: superseded moves were dropped
+        assert p.worker.dropped >= len(values) - built
+        assert p.last_job["params"]["r"] == pytest.approx(values[-1])  # the latest value won
+        assert np.abs(fig1_part(p.mesh.vertices, r=float(values[-1]))).max() < 1e-9
+    finally:
+        p.view.close()
+
+
+def test_preview_while_dragging_then_full_resolution():
+    p = shape_panel(fig1_part, resolution=48, preview_resolution=24, settle=0.05, backend="image", threaded=True)
+    try:
+        p.wait()
+        assert p.last_job["resolution"] == 48
+        p.sliders["r"].value = 0.4
+        p.wait()
+        assert p.last_job["resolution"] == 48 and p.last_job["params"]["r"] == pytest.approx(0.4)
+        assert p.remesh_count >= 4  # preview + full, twice
+    finally:
+        p.view.close()
+
+
+def test_reset_bounds_and_export(panel, tmp_path):
+    panel.sliders["r"].value = 0.7
+    panel.reset()
+    assert panel.sliders["r"].value == fig1_part.params["r"].default
+    assert panel.last_job["params"]["r"] == fig1_part.params["r"].default
+
+    panel.bounds.value = "(0, 0, 0), (1.1, 1.1, 1.1)"  # one octant
+    assert panel.mesh.vertices.min() >= -1e-12
+    panel.bounds.value = "(1, 0, 0), (0, 1, 1)"
+    assert "bounds not accepted" in panel.status.value and "inverted" in panel.status.value
+
+    import pyvista as pv
+
+    for fmt in ("stl", "obj", "ply"):
+        panel.export_format.value = fmt
+        path = panel.export(str(tmp_path / f"part.{fmt}"))
+        back = pv.read(path)
+        assert back.n_cells == panel.mesh.n_faces, fmt
+        assert "download part." in panel.download.value
+
+
+def test_any_user_model_and_errors():
+    @model(bounds=((-1.5,) * 3, (1.5,) * 3), r=Param(1.0, 0.5, 1.4, label="radius"), cx=Param(0.0, -0.1, 0.1))
+    def ball(x, r, cx):
+        return sphere(x, center=(cx, 0.0, 0.0), r=r)
+
+    p = shape_panel(ball, resolution=32, backend="image", threaded=False)
+    try:
+        assert list(p.sliders) == ["r", "cx"] and p.sliders["r"].description == "radius"
+        p.sliders["cx"].value = 0.05
+        # moving the center along x: df/dcx = 2 (x - cx), |grad f| = 2 |x - c|, so v = -n_x with n the
+        # outward normal: the +x pole moves outward (v = -1), the -x pole inward (v = +1)
+        v, x = p.scalars, p.mesh.vertices
+        n = (x - [0.05, 0, 0]) / np.linalg.norm(x - [0.05, 0, 0], axis=1, keepdims=True)
+        np.testing.assert_allclose(v, -n[:, 0], atol=1e-9)
+    finally:
+        p.view.close()
+    with pytest.raises(TypeError, match="Model"):
+        shape_panel(lambda x: x[..., 0], backend="image")
+
+
+def test_view_backend_choice(monkeypatch):
+    monkeypatch.setenv("PYFREP_VIEW", "image")
+    assert resolve_backend("auto") == "image"
+    monkeypatch.delenv("PYFREP_VIEW")
+    assert resolve_backend("auto") == "image"  # no kernel here
+    with pytest.raises(ValueError, match="backend"):
+        resolve_backend("webgl")
+
+
+def test_fit_charts_grow_during_the_run_and_loss_goes_down():
+    from workbench.fitting_panel import fitting_panel
+
+    p = fitting_panel(backend="image", n_points=400, seed=3)
+    try:
+        truth = p.truth["r"]
+        run = p.start(**TINY_FIT)
+        seen = []
+        while run.running:
+            seen.append(p.loss_chart.n_points)
+            time.sleep(0.01)
+        result = p.wait()
+        final = p.loss_chart.n_points
+        assert any(0 < s < final for s in seen)  # points arrived while it ran
+        assert p.param_chart.n_points == p.loss_chart.n_points
+        assert set(p.loss_chart.series) == {"evolution", "sgd", "polish"}
+        first = p.loss_chart.series["evolution"][1][0]
+        assert p.loss_chart.last("polish") < first
+        assert result.params["r"] == pytest.approx(truth, abs=1e-6)
+        assert "fit done" in p.status.value and "stopped" not in p.status.value
+        assert p.view.overlay_poly.n_points == 400 and p.view.poly.n_points > 0  # cloud + fitted surface
+        assert p.loss_chart.draws >= 2 and p.run_button.disabled is False
+    finally:
+        p.view.close()
+
+
+def test_stop_ends_a_fit_early():
+    from workbench.fitting_panel import fitting_panel
+
+    p = fitting_panel(backend="image", n_points=300, seed=2)
+    try:
+        planned = 200_000  # generations enough for minutes
+        run = p.start(**{**TINY_FIT, "cycles": planned, "population_size": 20, "children": 1})
+        t0 = time.monotonic()
+        while run.running and len(p.events) < 3 and time.monotonic() - t0 < 60:
+            time.sleep(0.01)
+        assert run.running
+        p.stop_button.click()
+        result = p.wait(timeout=60)
+        assert result.stopped and "stopped early" in p.status.value
+        assert result.stages == ("evolution",)
+        assert len(result.history["evolution"]) < planned / 10
+    finally:
+        p.view.close()
+
+
+def test_app_has_every_tab_and_survives_a_missing_module(monkeypatch):
+    app_module = importlib.import_module("workbench.app")  # (workbench.app is also the function)
+
+    w = workbench.app(backend="image", Shape={"resolution": 32, "threaded": False})
+    try:
+        assert [w.get_title(i) for i in range(len(w.children))] == [
+            "Shape",
+            "Curvature",
+            "Slices",
+            "Redistancing",
+            "Fitting",
+        ]
+        assert isinstance(w.panels["Shape"], workbench.ShapePanel)
+        assert "fig1_part" in w.panels["Shape"].choices
+    finally:
+        w.panels["Shape"].view.close()
+    monkeypatch.setattr(app_module, "TABS", (("Shape", "workbench.no_such_panel:build"),))
+    broken = App(backend="image")
+    assert "not available yet" in broken.panels["Shape"].value

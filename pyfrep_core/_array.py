@@ -57,6 +57,12 @@ def frep(fn: Callable) -> Callable:
                 has_numpy = True
         if not has_numpy:
             return fn(*args, **kwargs)
+        for name, a in (*enumerate(args), *kwargs.items()):
+            if isinstance(a, np.ndarray) and a.dtype.kind == "f" and not np.isfinite(a).all():
+                label = f"argument {name}" if isinstance(name, int) else name
+                raise ValueError(
+                    f"{fn.__name__}: {label} contains NaN or inf (first at {np.argwhere(~np.isfinite(a))[0]})"
+                )
         # numpy beside a tensor (numpy points, a tensor parameter): compute in torch, return torch
         out = fn(*[_to_torch(a, device) for a in args], **{k: _to_torch(v, device) for k, v in kwargs.items()})
         return out if device is not None else _back(out)
@@ -113,6 +119,9 @@ def vec(v: Any, like: torch.Tensor, n: int = 3, name: str = "center") -> torch.T
     A batched vector of shape (B, n) is allowed; it broadcasts against points as (B, 1, n)
     when the points are (N, n).
     """
+    # like is the point set: a wrong point shape gets a clear error here, before broadcasting
+    if like.ndim == 0 or not n <= like.shape[-1] <= 3:
+        raise ValueError(f"points x must have shape (N, {n}), got {tuple(like.shape)}")
     if isinstance(v, torch.Tensor):
         t = v.to(device=like.device, dtype=like.dtype)
     elif isinstance(v, list | tuple) and any(isinstance(c, torch.Tensor) for c in v):

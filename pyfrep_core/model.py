@@ -134,6 +134,8 @@ class Model:
         t, was_numpy = as_tensor(x, "x")
         if t.ndim < 1 or t.shape[-1] != self.dim:
             raise ValueError(f"x must have shape (N, {self.dim}), got {tuple(t.shape)}")
+        if was_numpy and not np.isfinite(x).all():
+            raise ValueError(f"x contains NaN or inf (first at {np.argwhere(~np.isfinite(np.asarray(x)))[0]})")
         values = self._resolve(overrides)
         batch = None
         for name, v in values.items():

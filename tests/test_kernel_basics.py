@@ -113,3 +113,14 @@ def test_numpy_points_with_tensor_parameter_keep_the_gradient():
     assert isinstance(out, torch.Tensor)
     out.sum().backward()
     assert r.grad.item() == pytest.approx(2.0)  # d/dr (r^2 - |x|^2) = 2r, twice
+
+
+def test_bad_points_get_clear_errors():
+    with pytest.raises(ValueError, match=r"shape \(N, 3\), got \(4, 2\)"):
+        sphere(np.zeros((4, 2)))
+    with pytest.raises(ValueError, match=r"shape \(N, 3\), got \(4, 2\)"):
+        cylX(torch.zeros(4, 2))
+    with pytest.raises(ValueError, match="NaN"):
+        sphere(np.array([[np.nan, 0.0, 0.0]]))
+    with pytest.raises(ValueError, match="NaN"):
+        fig1_part(np.array([[0.0, np.inf, 0.0]]))

@@ -136,8 +136,8 @@ class ShapePanel(widgets.VBox):
         self.export_format = widgets.Dropdown(
             options=("stl", "obj", "ply"), value="stl", layout=widgets.Layout(width="70px")
         )
-        self.export_button = widgets.Button(description="Export", icon="download", layout=widgets.Layout(width="100px"))
-        self.reset_button = widgets.Button(description="Reset", icon="undo", layout=widgets.Layout(width="100px"))
+        self.export_button = widgets.Button(description="Export", layout=widgets.Layout(width="100px"))
+        self.reset_button = widgets.Button(description="Reset", layout=widgets.Layout(width="100px"))
         self.status = widgets.HTML(value="meshing...")
         self.download = widgets.HTML(value="")
         self.view = MeshView(backend=backend, size=size)

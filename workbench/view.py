@@ -13,8 +13,10 @@ else the image.  Renders must happen on the main thread (STACK.md pitfall 2).
 
 from __future__ import annotations
 
+import contextlib
 import io
 import os
+import tempfile
 import time
 from typing import Any
 
@@ -23,6 +25,11 @@ import numpy as np
 
 # EGL needs no X server; set before VTK creates its first window (STACK.md: saves ~1.5 s).
 os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
+# Offline: trame_vtklocal (loaded by pyvista's trame server, unused here) downloads a VTK wasm
+# bundle from gitlab.kitware.com unless pointed at a local directory; an empty one will do.
+_NO_WASM = os.path.join(tempfile.gettempdir(), "pyfrep-no-vtk-wasm")
+os.makedirs(_NO_WASM, exist_ok=True)
+os.environ.setdefault("VTK_WASM_DIR_OVERRIDE", _NO_WASM)
 
 import pyvista as pv  # noqa: E402
 
@@ -71,7 +78,8 @@ class MeshView:
         self.backend = resolve_backend(backend)
         self.size = size
         self.color = color
-        self.plotter = pv.Plotter(off_screen=True, window_size=list(size))
+        # notebook=True: pyvista's own probe says "no kernel" inside widget callbacks (a tab opened later)
+        self.plotter = pv.Plotter(off_screen=True, notebook=self.backend == "trame", window_size=list(size))
         self.plotter.set_background("white")
         self.poly = pv.PolyData()
         self.actor: Any = None
@@ -86,7 +94,10 @@ class MeshView:
             try:
                 import trame_pyvista  # noqa: F401
 
-                view = self.plotter.show(jupyter_backend="trame", return_viewer=True)
+                with contextlib.redirect_stdout(io.StringIO()):  # trame_vtklocal prints its wasm path
+                    view = self.plotter.show(jupyter_backend="trame", return_viewer=True)
+                if view is None:
+                    raise RuntimeError("pyvista returned no trame viewer")
                 view.layout = widgets.Layout(width=f"{self.size[0]}px", height=f"{self.size[1] + 10}px")
                 return view
             except Exception as err:  # no trame server possible here: fall back, say why

@@ -1,0 +1,186 @@
+"""The workbench in a real browser: Voila serves notebooks/workbench.ipynb, Playwright drives Chromium.
+
+One Voila server for the module (it is heavy); screenshots go to test-artifacts/.
+Needs Debian's chromium at /usr/bin/chromium (``make browser`` installs it).
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import re
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+ARTIFACTS = ROOT / "test-artifacts"
+CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
+CHROMIUM_ARGS = [
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+]
+
+pytestmark = pytest.mark.skipif(
+    not os.path.exists(CHROMIUM), reason=f"chromium not found at {CHROMIUM}: run `make browser` (apt) to install it"
+)
+playwright_api = pytest.importorskip("playwright.sync_api")
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture(scope="module")
+def voila_url():
+    port = free_port()
+    ARTIFACTS.mkdir(exist_ok=True)
+    log = open(ARTIFACTS / "voila.log", "w")  # noqa: SIM115 (closed in the teardown)
+    voila = Path(sys.executable).with_name("voila")
+    proc = subprocess.Popen(
+        [
+            str(voila),
+            "notebooks/workbench.ipynb",
+            "--no-browser",
+            f"--port={port}",
+            "--MappingKernelManager.cull_idle_timeout=120",
+            "--MappingKernelManager.cull_interval=30",
+        ],
+        cwd=ROOT,
+        stdout=log,
+        stderr=subprocess.STDOUT,
+        start_new_session=True,
+    )
+    try:
+        deadline = time.monotonic() + 60
+        while True:
+            try:
+                socket.create_connection(("127.0.0.1", port), timeout=1).close()
+                break
+            except OSError:
+                if proc.poll() is not None or time.monotonic() > deadline:
+                    pytest.fail(f"voila did not start (exit {proc.poll()}); see {ARTIFACTS / 'voila.log'}")
+                time.sleep(0.2)
+        yield f"http://127.0.0.1:{port}/"
+    finally:
+        os.killpg(proc.pid, signal.SIGTERM)  # voila and the kernels it started
+        try:
+            proc.wait(15)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait(5)
+        log.close()
+
+
+@pytest.fixture(scope="module")
+def page(voila_url):
+    external = []
+    with playwright_api.sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
+        try:
+            pg = browser.new_page(viewport={"width": 1500, "height": 1000})
+            pg.on(
+                "request",
+                lambda r: (
+                    external.append(r.url)
+                    if not re.match(r"(https?|wss?)://(127\.0\.0\.1|localhost)[:/]", r.url)
+                    and not r.url.startswith(("data:", "blob:"))
+                    else None
+                ),
+            )
+            pg.goto(voila_url, wait_until="domcontentloaded", timeout=120_000)  # "load" may never fire
+            pg.wait_for_selector(".widget-slider", timeout=240_000)
+            yield pg
+        finally:
+            (ARTIFACTS / "external_requests.txt").write_text("\n".join(external) + "\n")
+            browser.close()
+
+
+def status_text(pg) -> str:
+    return pg.locator(".widget-html-content", has_text="remeshed in").last.inner_text()
+
+
+def pixels(png: bytes) -> np.ndarray:
+    from PIL import Image
+
+    return np.asarray(Image.open(io.BytesIO(png)).convert("RGB"), dtype=np.int16)
+
+
+def view_locator(pg):
+    frame = pg.locator("iframe.pyvista")
+    if frame.count():
+        return frame.first
+    return pg.locator(".widget-image").first  # off-screen image fallback
+
+
+def test_slider_remeshes_and_the_view_changes(page):
+    page.wait_for_function("document.body.innerText.includes('remeshed in')", timeout=240_000)
+    # let the full-resolution mesh replace the preview before the reference picture
+    page.wait_for_function("document.body.innerText.includes('128³')", timeout=240_000)
+    view = view_locator(page)
+    view.scroll_into_view_if_needed()
+    time.sleep(2.0)
+    before_text = status_text(page)
+    before = view.screenshot(path=str(ARTIFACTS / "shape_before.png"))
+    assert "r = 0.5;" in before_text or "r = 0.5)" in before_text
+
+    handle = page.locator(".widget-slider .noUi-handle").first
+    handle.focus()
+    for _ in range(25):  # 25 steps of range/200: r 0.5 -> 0.575
+        page.keyboard.press("ArrowRight")
+    page.wait_for_function(
+        "document.body.innerText.includes('r = 0.575') && document.body.innerText.includes('128³')", timeout=240_000
+    )
+    after_text = status_text(page)
+    assert re.search(r"remeshed in \d+ ms, \d+ triangles", after_text)
+    n_before = int(re.search(r"(\d+) triangles", before_text).group(1))
+    n_after = int(re.search(r"(\d+) triangles", after_text).group(1))
+    assert n_after != n_before
+
+    deadline = time.monotonic() + 30  # the picture follows the render
+    while True:
+        after = view.screenshot(path=str(ARTIFACTS / "shape_after.png"))
+        changed = (np.abs(pixels(after) - pixels(before)).sum(-1) > 30).mean()
+        if changed > 0.005 or time.monotonic() > deadline:
+            break
+        time.sleep(1.0)
+    page.screenshot(path=str(ARTIFACTS / "shape_page.png"))
+    assert changed > 0.005, f"only {changed:.2%} of the view's pixels changed"
+
+
+def test_fit_runs_chart_grows_and_loss_goes_down(page):
+    page.get_by_role("tab", name="Fitting").click()
+    run = page.get_by_role("button", name="Run")
+    run.wait_for(timeout=240_000)
+    page.wait_for_function("document.body.innerText.includes('points sampled')", timeout=240_000)
+    charts = page.locator(".jupyter-widgets.widget-image")
+    before = [charts.nth(i).get_attribute("src") for i in range(charts.count())]
+    run.click()
+    page.wait_for_selector(".fit-progress", timeout=120_000)
+    page.screenshot(path=str(ARTIFACTS / "fit_running.png"))
+    page.wait_for_selector(".fit-done", timeout=400_000)
+    page.screenshot(path=str(ARTIFACTS / "fit_done.png"))
+    after = [charts.nth(i).get_attribute("src") for i in range(charts.count())]
+    assert len(after) >= 2 and sum(a != b for a, b in zip(before, after)) >= 2  # loss and parameter charts redrawn
+
+    progress = page.locator(".fit-progress").inner_text()
+    charted = int(re.search(r"(\d+) points charted", progress).group(1))
+    assert charted >= 3
+    first = float(re.search(r"first ([0-9.e+-]+)", progress).group(1))
+    final = float(re.search(r"loss ([0-9.e+-]+), stages", page.locator(".fit-done").inner_text()).group(1))
+    assert final < first

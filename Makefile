@@ -35,8 +35,11 @@ test: setup browser lint
 	@if ls notebooks/*.ipynb >/dev/null 2>&1; then \
 		$(VENV)/bin/pytest -q -p no:doctest --nbval-lax --nbval-current-env notebooks/; fi
 
+# The workbench in a browser: Voila serves notebooks/workbench.ipynb; idle kernels are culled.
 run: setup
-	$(PY) -m pyfrep_core.demo
+	@echo "workbench: http://localhost:$(PORT)/"
+	$(VENV)/bin/voila notebooks/workbench.ipynb --no-browser --port=$(PORT) \
+		--MappingKernelManager.cull_idle_timeout=120 --MappingKernelManager.cull_interval=30
 
 bench: setup
 	for b in benchmarks/*.py; do $(PY) $$b; done

@@ -24,6 +24,7 @@ from . import sdf
 from .convolution import *  # noqa: F403
 from .convolution import __all__ as _convolution_all
 from .diff import grad, project_to_surface, value_and_grad
+from .fitting import FitResult, fit
 from .lattices import *  # noqa: F403
 from .lattices import __all__ as _lattices_all
 from .mesh import Mesh, polygonize
@@ -35,20 +36,24 @@ from .periodic import __all__ as _periodic_all
 from .primitives import *  # noqa: F403
 from .primitives import __all__ as _primitives_all
 from .progress import Event, Progress
+from .sampling import sample_surface
 from .transforms import *  # noqa: F403
 from .transforms import __all__ as _transforms_all
 
 __version__ = "0.1.0"
 __all__ = [
     "Event",
+    "FitResult",
     "Mesh",
     "Model",
     "Param",
     "Progress",
+    "fit",
     "grad",
     "model",
     "polygonize",
     "project_to_surface",
+    "sample_surface",
     "sdf",
     "value_and_grad",
     *_convolution_all,

@@ -125,7 +125,9 @@ def vec(v: Any, like: torch.Tensor, n: int = 3, name: str = "center") -> torch.T
     if isinstance(v, torch.Tensor):
         t = v.to(device=like.device, dtype=like.dtype)
     elif isinstance(v, list | tuple) and any(isinstance(c, torch.Tensor) for c in v):
-        t = torch.stack([torch.as_tensor(c, dtype=like.dtype, device=like.device) for c in v], dim=-1)
+        # batched components ((B, 1) from a Model) beside plain numbers: broadcast, then stack
+        comps = [torch.as_tensor(c, dtype=like.dtype, device=like.device) for c in v]
+        t = torch.stack(torch.broadcast_tensors(*comps), dim=-1)
     else:
         t = torch.as_tensor(np.asarray(v, dtype=np.float64), dtype=like.dtype, device=like.device)
     if t.ndim == 0 or t.shape[-1] != n:

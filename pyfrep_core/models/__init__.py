@@ -4,5 +4,6 @@ Each is a :class:`pyfrep_core.model.Model` with named, bounded parameters and de
 """
 
 from ._fig1 import fig1_part
+from ._microstructure import microstructure
 
-__all__ = ["fig1_part"]
+__all__ = ["fig1_part", "microstructure"]

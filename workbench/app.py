@@ -90,7 +90,16 @@ class App(widgets.Tab):
             panel = unavailable(title, err)
         self.panels[title] = panel
         self.children[index].children = (panel,)
+        self._link()
         return panel
+
+    def _link(self) -> None:
+        """Networks trained in the redistancing tab appear in the slice tab."""
+        red, sl = self.panels.get("Redistancing"), self.panels.get("Slices")
+        if hasattr(red, "on_trained") and hasattr(sl, "set_network") and sl.set_network not in red.on_trained:
+            red.on_trained.append(sl.set_network)
+            for name, network in red.trained.items():
+                sl.set_network(name, network)
 
     def panel(self, title: str) -> Any:
         """The panel of tab ``title``, built if needed."""

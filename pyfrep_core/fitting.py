@@ -413,6 +413,7 @@ def fit(
     polish_iters: int = 50,
     xtol: float = 1e-10,
     dtype: torch.dtype = torch.float32,
+    num_threads: int | None = 1,
     seed: int | None = None,
     callback: Callable[[Event], Any] | None = None,
     every: int = 10,
@@ -447,6 +448,9 @@ def fit(
         learning rate (in the unit box) decays linearly to 0.
     polish_iters, xtol : function evaluations and tolerance of the least-squares polish.
     dtype : dtype of the evolution and SGD stages (the polish and residuals use float64).
+    num_threads : torch intra-op threads during the fit (restored afterwards); None keeps the
+        current setting.  The fit's tensors are small (a batch, a subsample), so one thread is as
+        fast and does not collapse when other processes share the cores (OpenMP spin-waits).
     seed : seeds every random choice (population, tournaments, mutations, subsets, batches).
     callback, every, stop, progress : see :mod:`pyfrep_core.progress`; events carry the stage,
         step (generation, epoch or evaluation), loss and current parameters.  A callback returning
@@ -467,21 +471,37 @@ def fit(
                                ("sample_size", sample_size, 1), ("children", children, 1),
                                ("subsample", subsample, 1), ("final_subsample", final_subsample, 1),
                                ("finalists", finalists, 1), ("epochs", epochs, 0), ("batch_size", batch_size, 1),
-                               ("polish_iters", polish_iters, 1)):  # fmt: skip
+                               ("polish_iters", polish_iters, 1), ("every", every, 1)):  # fmt: skip
         if isinstance(value, bool) or not isinstance(value, int) or value < least:
             raise ValueError(f"{name} must be an integer >= {least}, got {value!r}")
+    if num_threads is not None and (
+        isinstance(num_threads, bool) or not isinstance(num_threads, int) or num_threads < 1
+    ):
+        raise ValueError(f"num_threads must be a positive integer or None, got {num_threads!r}")
     if not 0 < mutation[0] <= mutation[1]:
         raise ValueError(f"mutation must be (smallest, largest) with 0 < smallest <= largest, got {mutation!r}")
     cfg = dict(cycles=cycles, population_size=population_size, sample_size=sample_size, children=children,
                mutation=mutation, subsample=subsample, final_subsample=final_subsample, finalists=finalists,
-               epochs=epochs, batch_size=batch_size, lr=lr, polish_iters=polish_iters, xtol=xtol)  # fmt: skip
+               epochs=epochs, batch_size=batch_size, lr=lr, polish_iters=polish_iters, xtol=xtol,
+               dtype=dtype)  # fmt: skip
     prob = _Problem(model, x, {k: float(v) for k, v in fixed.items()}, box)
     gen = torch.Generator().manual_seed(seed if seed is not None else int(torch.randint(2**62, ()).item()))
-    xw = x.detach().to(dtype)
 
     def report(total: int, stage: str) -> Progress:
         return _LazyProgress(total, stage, callback, every, stop, progress)
 
+    threads = torch.get_num_threads()
+    if num_threads is not None:
+        torch.set_num_threads(num_threads)
+    try:
+        return _run_stages(prob, x, stages, init, cfg, gen, report)
+    finally:
+        torch.set_num_threads(threads)
+
+
+def _run_stages(prob: _Problem, x: torch.Tensor, stages: tuple, init: dict, cfg: dict, gen, report) -> FitResult:
+    """The stages in order, each starting where the previous one ended (in the unit box)."""
+    xw = x.detach().to(cfg["dtype"])
     # starting point in the unit box: init values, random for the rest
     u = torch.rand(len(prob.free), generator=gen, dtype=torch.float64)
     for j, k in enumerate(prob.free):
@@ -500,7 +520,7 @@ def fit(
             best, stopped, history[stage] = _evolution(prob, xw, gen, cfg, init_u, report)
             u = best.to(torch.float64).cpu()
         elif stage == "sgd":
-            uu, stopped, history[stage] = _sgd(prob, xw, gen, cfg, u.to(dtype).to(x.device), report)
+            uu, stopped, history[stage] = _sgd(prob, xw, gen, cfg, u.to(xw.dtype).to(x.device), report)
             u = uu.to(torch.float64).cpu()
         else:
             p, stopped, history[stage], covariance = _polish(prob, x, u, cfg, report)
@@ -512,7 +532,7 @@ def fit(
             break
     params = prob.as_dict(prob.to_params(u.to(torch.float64)).tolist())
     t0 = time.perf_counter()
-    residuals = fit_error(model, x, params)
+    residuals = fit_error(prob.model, x, params)
     timings["residuals"] = time.perf_counter() - t0
     timings["total"] = time.perf_counter() - start
     return FitResult(

@@ -382,9 +382,11 @@ def convMesh(
     verts = _rows(vect, x, 3, "vect")
     if base not in (0, 1):
         raise ValueError(f"base must be 0 or 1, got {base!r}")
-    index = torch.as_tensor(np.asarray(tri.cpu() if isinstance(tri, torch.Tensor) else tri))
-    if index.dtype.is_floating_point or index.dtype == torch.bool or index.numel() == 0 or index.numel() % 3:
-        raise ValueError(f"tri must hold M triples of integer vertex indices, got {tuple(index.shape)}")
+    index = tri.detach().cpu() if isinstance(tri, torch.Tensor) else torch.as_tensor(np.asarray(tri))
+    # numpy integer faces arrive as float64 through @frep: integral values are accepted
+    integral = not index.dtype.is_floating_point or bool((index == index.round()).all())
+    if index.dtype == torch.bool or index.numel() == 0 or index.numel() % 3 or not integral:
+        raise ValueError(f"tri must hold M triples of integer vertex indices, got {tri!r}")
     index = index.reshape(-1, 3).to(torch.int64) - base
     if int(index.min()) < 0 or int(index.max()) >= verts.shape[0]:
         lo, hi = int(index.min()) + base, int(index.max()) + base

@@ -138,6 +138,12 @@ def test_conv_mesh_equals_its_triangles():
     out0 = convMesh(x, verts, faces, s, 0.1, base=0)
     torch.testing.assert_close(out1, expected, rtol=0, atol=1e-13)
     torch.testing.assert_close(out0, expected, rtol=0, atol=1e-13)
+    # numpy in, numpy out, with integer faces
+    out_np = convMesh(x.numpy(), verts.numpy(), faces.numpy(), s.numpy(), 0.1, base=0)
+    assert isinstance(out_np, np.ndarray)
+    np.testing.assert_allclose(out_np, expected.numpy(), atol=1e-13)
+    with pytest.raises(ValueError, match="integer vertex indices"):
+        convMesh(x, verts, [0.5, 1, 2], 1.0, 0.1, base=0)
     with pytest.raises(ValueError, match="base=0"):
         convMesh(x, verts, faces, s, 0.1)  # 0-based faces read as 1-based
     with pytest.raises(ValueError, match="tri indices"):

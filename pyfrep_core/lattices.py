@@ -275,7 +275,7 @@ def spinodoid(
     x : (..., 3) points.
     wavenumber : beta, radians per length unit (feature size ~ 2 pi / wavenumber); a float or
         a 0-d tensor (batched (B, 1) values are for ``density`` only).
-    numwaves : N, number of waves (the field is evaluated in chunks of points, memory ~ 32 MB).
+    numwaves : N, number of waves (evaluated in chunks of points: temporaries of ~4M entries).
     density : target solid volume fraction in (0, 1); a tensor is differentiable.
     theta : cone half-angles (radians) around x, y, z; (pi/2,)*3 is isotropic.
     seed : random seed of the directions and phases.

@@ -35,7 +35,7 @@ import pyvista as pv  # noqa: E402
 
 __all__ = ["MeshView", "resolve_backend"]
 
-BACKENDS = ("trame", "image")
+BACKENDS = ("trame", "image", "offscreen")  # offscreen: render only, no picture pushed (benchmarks)
 
 
 def _in_kernel() -> bool:
@@ -60,7 +60,7 @@ def resolve_backend(backend: str = "auto") -> str:
             return "image"
         return "trame"
     if backend not in BACKENDS:
-        raise ValueError(f"backend must be 'auto', 'trame' or 'image', got {backend!r}")
+        raise ValueError(f"backend must be 'auto', 'trame', 'image' or 'offscreen', got {backend!r}")
     return backend
 
 
@@ -207,9 +207,12 @@ class MeshView:
         if reset_camera:
             self.plotter.view_isometric()
             self.plotter.reset_camera()
-        self.plotter.render()  # the trame viewer listens to this render
-        if self.backend == "image":
-            self.widget.value = self.png()
+        if self.backend == "trame":
+            self.plotter.render()  # the trame viewer listens to this render
+        elif self.backend == "image":
+            self.widget.value = self.png()  # the screenshot renders
+        else:
+            self.plotter.render_window.Render()  # pyvista's render() waits for a first show()
         self.renders += 1
         self.last_render_s = time.perf_counter() - t0
 

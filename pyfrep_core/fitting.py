@@ -403,7 +403,7 @@ def fit(
     population_size: int = 100,
     sample_size: int = 10,
     children: int = 50,
-    mutation: tuple[float, float] = (1e-3, 0.3),
+    mutation: tuple[float, float] = (1e-3, 1.0),
     subsample: int = 256,
     final_subsample: int = 8192,
     finalists: int = 16,

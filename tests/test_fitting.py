@@ -16,7 +16,7 @@ from pyfrep_core.models import microstructure
 
 QUICK = os.environ.get("PYFREP_QUICK", "0") == "1"
 # the paper's protocol: 10,000 cycles (population 100, tournaments of 10), 100 SGD epochs; quick mode: fewer
-PROTOCOL = dict(cycles=3000, epochs=20) if QUICK else dict(cycles=10_000, epochs=100)
+PROTOCOL = dict(cycles=5000, epochs=20) if QUICK else dict(cycles=10_000, epochs=100)
 TRUTH = dict(scale1=8.2, scale2=3.6, freq1=0.7, freq2=0.9)  # inside the bounds, not the defaults
 
 

@@ -1,4 +1,10 @@
-"""Grids, chunked evaluation, marching cubes with vertices projected onto f = 0, and the Mesh type.
+"""Grids, chunked evaluation, marching cubes with vertices moved onto f = 0, and the Mesh type.
+
+``polygonize`` evaluates f on a regular grid (float32, in cache-sized chunks), runs
+scikit-image's marching cubes, then moves every vertex onto f = 0 in float64: along its
+marching-cubes edge by bracketed root finding (the edge's two grid values bracket the
+root), with Newton steps along grad f (:func:`pyfrep_core.diff.project_to_surface`) for
+the few vertices that do not lie strictly inside an edge.  Normals are -grad f.
 
 >>> from pyfrep_core import sphere
 >>> m = polygonize(lambda x: sphere(x, r=1.0), ((-1.2,) * 3, (1.2,) * 3), 64)
@@ -8,6 +14,8 @@
 
 from __future__ import annotations
 
+import math
+import os
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -17,8 +25,27 @@ import numpy as np
 import torch
 from skimage.measure import marching_cubes
 
-from .diff import project_to_surface
+from .diff import project_to_surface, value_and_grad
 from .model import check_bounds
+
+__all__ = [
+    "Mesh",
+    "GridTooLargeError",
+    "polygonize",
+    "evaluate_grid",
+    "grid_axes",
+    "grid_memory",
+    "available_memory",
+]
+
+CHUNK_POINTS = 1 << 16  # grid points per evaluation chunk on the CPU: the temporaries stay in cache
+CHUNK_POINTS_GPU = 1 << 22
+ROOT_CHUNK = 1 << 18  # vertices per float64 evaluation while refining
+GiB = float(1 << 30)
+
+
+class GridTooLargeError(ValueError, MemoryError):
+    """A grid that would not fit in memory (a ValueError for bad input, and a MemoryError)."""
 
 
 @dataclass
@@ -31,12 +58,52 @@ class Mesh:
     faces : (F, 3) int64, counter-clockwise seen from outside (normals by the right-hand rule point out)
     normals : (V, 3) float64 outward unit normals (from -grad f at the vertices), or None
     point_data : name -> (V,) or (V, k) arrays carried along (curvatures, residuals ...)
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> tet = Mesh(np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]]),
+    ...            np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]]))
+    >>> round(tet.volume(), 6), tet.n_vertices, tet.n_faces
+    (0.166667, 4, 4)
     """
 
     vertices: np.ndarray
     faces: np.ndarray
     normals: np.ndarray | None = None
     point_data: dict[str, np.ndarray] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.vertices = _as_array(self.vertices, np.float64, "vertices")
+        if self.vertices.ndim != 2 or self.vertices.shape[1] != 3:
+            raise ValueError(f"vertices must have shape (V, 3), got {self.vertices.shape}")
+        if not np.isfinite(self.vertices).all():
+            raise ValueError("vertices contain NaN or inf")
+        faces = np.asarray(self.faces)
+        if faces.size == 0:
+            faces = faces.reshape(0, 3)
+        if faces.ndim != 2 or faces.shape[1] != 3:
+            raise ValueError(f"faces must have shape (F, 3), got {faces.shape}")
+        if faces.dtype.kind not in "iu":
+            if faces.dtype.kind != "f" or not np.array_equal(faces, np.round(faces)):
+                raise ValueError(f"faces must hold integer vertex indices, got dtype {faces.dtype}")
+        self.faces = faces.astype(np.int64, copy=False)
+        if self.faces.size and (self.faces.min() < 0 or self.faces.max() >= len(self.vertices)):
+            raise ValueError(
+                f"faces index vertices {self.faces.min()}..{self.faces.max()}, "
+                f"but there are {len(self.vertices)} vertices"
+            )
+        if self.normals is not None:
+            self.normals = _as_array(self.normals, np.float64, "normals")
+            if self.normals.shape != self.vertices.shape:
+                raise ValueError(f"normals must have shape {self.vertices.shape}, got {self.normals.shape}")
+        data = {}
+        for name, values in dict(self.point_data).items():
+            arr = np.asarray(values)
+            if arr.ndim == 0 or arr.shape[0] != len(self.vertices):
+                raise ValueError(f"point_data[{name!r}] must have one row per vertex, got shape {arr.shape}")
+            data[name] = arr
+        self.point_data = data
 
     @property
     def n_vertices(self) -> int:
@@ -75,15 +142,140 @@ class Mesh:
             poly.point_data[name] = values
         return poly
 
+    def save(self, path: str | os.PathLike, **kwargs: Any) -> None:
+        """Write the mesh; the format follows the extension (see :func:`pyfrep_core.io.save_mesh`)."""
+        from .io import save_mesh
 
-def grid_axes(bounds: Any, resolution: int | tuple[int, int, int], dim: int = 3) -> list[np.ndarray]:
-    """Sample positions along each axis: ``resolution`` points from lower to upper bound inclusive."""
-    lo, hi = check_bounds(bounds, dim)
-    res = (resolution,) * dim if np.isscalar(resolution) else tuple(resolution)
-    for r in res:
-        if int(r) != r or r < 2:
+        save_mesh(self, path, **kwargs)
+
+
+def _as_array(values: Any, dtype: type, name: str) -> np.ndarray:
+    if isinstance(values, torch.Tensor):
+        values = values.detach().cpu().numpy()
+    try:
+        return np.asarray(values, dtype=dtype)
+    except (TypeError, ValueError) as err:
+        raise ValueError(f"{name} must be a numeric array: {err}") from None
+
+
+def _resolution(resolution: Any, dim: int) -> tuple[int, ...]:
+    """Validate samples per axis: an integer >= 2, or one per axis."""
+    values = (resolution,) * dim if np.ndim(resolution) == 0 else tuple(resolution)
+    if len(values) != dim:
+        raise ValueError(f"resolution must be one integer or {dim} integers, got {resolution!r}")
+    out = []
+    for r in values:
+        ok = isinstance(r, int | np.integer | float | np.floating) and not isinstance(r, bool | np.bool_)
+        if not ok or not math.isfinite(r) or int(r) != r or r < 2:
             raise ValueError(f"resolution must be an integer >= 2 per axis, got {resolution!r}")
-    return [np.linspace(a, b, int(r)) for a, b, r in zip(lo, hi, res)]
+        out.append(int(r))
+    return tuple(out)
+
+
+def grid_axes(bounds: Any, resolution: int | tuple[int, ...], dim: int = 3) -> list[np.ndarray]:
+    """Sample positions along each axis: ``resolution`` points from lower to upper bound inclusive.
+
+    Examples
+    --------
+    >>> grid_axes(((0, 0, 0), (1, 2, 1)), 3)[1]
+    array([0., 1., 2.])
+    """
+    lo, hi = check_bounds(bounds, dim)
+    res = _resolution(resolution, dim)
+    return [np.linspace(a, b, r) for a, b, r in zip(lo, hi, res)]
+
+
+def available_memory() -> int | None:
+    """Bytes of memory available to a new allocation (``MemAvailable``), or None if unknown."""
+    try:
+        with open("/proc/meminfo") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return int(os.sysconf("SC_AVPHYS_PAGES")) * int(os.sysconf("SC_PAGE_SIZE"))
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def grid_memory(resolution: int | tuple[int, ...], dtype: torch.dtype = torch.float32) -> int:
+    """Estimated peak bytes to evaluate and mesh a grid of ``resolution`` samples per axis.
+
+    The grid itself (4 or 8 bytes a sample; marching cubes needs a float32 copy of a
+    float64 grid), a quarter more for marching cubes' per-slice tables and its output,
+    and 64 MiB of chunk temporaries.
+
+    Examples
+    --------
+    >>> round(grid_memory(512) / 2**30, 2)
+    0.69
+    """
+    n = math.prod(_resolution(resolution, 3))
+    per_sample = 4 if dtype == torch.float32 else 8 + 4
+    return int(n * per_sample * 1.25) + (64 << 20)
+
+
+def _check_memory(resolution: tuple[int, ...], dtype: torch.dtype) -> None:
+    need = grid_memory(resolution, dtype)
+    have = available_memory()
+    if have is not None and need > have:
+        shown = resolution[0] if len(set(resolution)) == 1 else resolution
+        raise GridTooLargeError(
+            f"resolution {shown} needs about {need / GiB:.3g} GiB for the grid and marching cubes, "
+            f"but only {have / GiB:.3g} GiB of memory is available; lower the resolution"
+        )
+
+
+def _grid_chunks(shape: tuple[int, int, int], max_points: int):
+    """Blocks (i, kx, j, ky) of whole z-rows with at most ``max_points`` points (at least one row)."""
+    nx, ny, nz = shape
+    if ny * nz <= max_points:
+        kx = max(1, max_points // (ny * nz))
+        for i in range(0, nx, kx):
+            yield i, min(kx, nx - i), 0, ny
+    else:
+        ky = max(1, max_points // nz)
+        for i in range(nx):
+            for j in range(0, ny, ky):
+                yield i, 1, j, min(ky, ny - j)
+
+
+def _evaluate_grid(
+    f: Callable, axes: list[np.ndarray], dtype: torch.dtype, device: Any, max_points: int | None
+) -> tuple[np.ndarray, float, float]:
+    """f on the grid of ``axes`` plus its min and max; raises on a non-finite value."""
+    device = torch.device(device)
+    if max_points is None:
+        max_points = CHUNK_POINTS if device.type == "cpu" else CHUNK_POINTS_GPU
+    shape = tuple(len(a) for a in axes)
+    out = np.empty(shape, dtype=np.float32 if dtype == torch.float32 else np.float64)
+    gx, gy, gz = (torch.as_tensor(a, dtype=dtype, device=device) for a in axes)
+    vmin, vmax = math.inf, -math.inf
+    buffers: dict[tuple[int, int], torch.Tensor] = {}
+    with torch.no_grad():
+        for i, kx, j, ky in _grid_chunks(shape, max_points):
+            # coordinates stored component-first, so that x[..., 0] etc. are contiguous blocks
+            pts = buffers.get((kx, ky))
+            if pts is None:
+                pts = buffers.setdefault((kx, ky), torch.empty((3, kx, ky, shape[2]), dtype=dtype, device=device))
+            pts[0] = gx[i : i + kx, None, None]
+            pts[1] = gy[j : j + ky, None]
+            pts[2] = gz
+            vals = f(pts.permute(1, 2, 3, 0))
+            if not isinstance(vals, torch.Tensor) or vals.shape != (kx, ky, shape[2]):
+                got = tuple(vals.shape) if hasattr(vals, "shape") else type(vals).__name__
+                raise ValueError(f"f must map points (..., 3) to values (...), got {got} for {(kx, ky, shape[2], 3)}")
+            lo, hi = torch.aminmax(vals)
+            lo, hi = float(lo), float(hi)
+            if not (math.isfinite(lo) and math.isfinite(hi)):
+                bad = tuple(int(t) for t in torch.nonzero(~torch.isfinite(vals))[0])
+                where = pts[(slice(None), *bad)].tolist()
+                raise ValueError(f"f is not finite at x = {tuple(where)}: {float(vals[bad])}")
+            vmin, vmax = min(vmin, lo), max(vmax, hi)
+            out[i : i + kx, j : j + ky] = vals.cpu().numpy()
+    return out, vmin, vmax
 
 
 def evaluate_grid(
@@ -92,84 +284,306 @@ def evaluate_grid(
     resolution: int | tuple[int, int, int],
     dtype: torch.dtype = torch.float32,
     device: str | torch.device = "cpu",
-    max_points: int = 1 << 20,
+    max_points: int | None = None,
 ) -> np.ndarray:
-    """f on a regular 3-D grid, evaluated in slabs of at most ``max_points`` points.
+    """f on a regular 3-D grid, evaluated in chunks of at most ``max_points`` points.
 
-    Returns an (nx, ny, nz) numpy array (``dtype``); memory beyond the result stays
-    below a few times ``max_points`` points.
+    Parameters
+    ----------
+    f : callable, torch points (..., 3) -> values (...).
+    bounds : ((xmin, ymin, zmin), (xmax, ymax, zmax)); the grid's end points lie on them.
+    resolution : samples per axis (>= 2), or one per axis.
+    dtype : torch.float32 (fast) or torch.float64.
+    max_points : points per call of f (default 2^16 on the CPU: the temporaries stay in cache).
+
+    Returns
+    -------
+    (nx, ny, nz) numpy array of ``dtype``: ``values[i, j, k] = f(x_i, y_j, z_k)``.
+
+    Raises
+    ------
+    ValueError (GridTooLargeError) before allocating when the grid cannot fit in memory;
+    ValueError naming the point where f is NaN or inf.
+
+    Examples
+    --------
+    >>> from pyfrep_core import sphere
+    >>> v = evaluate_grid(lambda x: sphere(x, r=1.0), ((-1, -1, -1), (1, 1, 1)), 3)
+    >>> v.shape, float(v[1, 1, 1]), float(v[0, 0, 0])
+    ((3, 3, 3), 1.0, -2.0)
     """
-    axes = grid_axes(bounds, resolution)
-    nx, ny, nz = (len(a) for a in axes)
-    out = np.empty((nx, ny, nz), dtype=np.float32 if dtype == torch.float32 else np.float64)
-    gx, gy, gz = (torch.as_tensor(a, dtype=dtype, device=device) for a in axes)
-    yy, zz = torch.meshgrid(gy, gz, indexing="ij")
-    slab = max(1, max_points // (ny * nz))
-    with torch.no_grad():
-        for i in range(0, nx, slab):
-            k = min(slab, nx - i)
-            pts = torch.empty((k, ny, nz, 3), dtype=dtype, device=device)
-            pts[..., 0] = gx[i : i + k, None, None]
-            pts[..., 1] = yy
-            pts[..., 2] = zz
-            vals = f(pts)
-            if vals.shape != (k, ny, nz):
-                raise ValueError(f"f must map points (..., 3) to values (...), got {tuple(vals.shape)}")
-            out[i : i + k] = vals.cpu().numpy()
-    return out
+    res = _resolution(resolution, 3)
+    _check_memory(res, dtype)
+    axes = grid_axes(bounds, res)
+    return _evaluate_grid(f, axes, dtype, device, max_points)[0]
 
 
 def polygonize(
     f: Callable,
     bounds: Any = None,
-    resolution: int = 128,
+    resolution: int | tuple[int, int, int] = 128,
     project: bool = True,
     dtype: torch.dtype = torch.float32,
     device: str | torch.device = "cpu",
 ) -> Mesh:
-    """Mesh the surface f = 0 inside ``bounds`` with marching cubes, vertices projected onto f = 0.
+    """Mesh the surface f = 0 inside ``bounds`` with marching cubes, vertices moved onto f = 0.
 
     Parameters
     ----------
-    f : callable (..., 3) -> (...), or a Model (its default bounds are used when ``bounds`` is None).
+    f : callable (..., 3) -> (...) on torch tensors, or a Model (its default bounds are
+        used when ``bounds`` is None).
     bounds : ((xmin, ymin, zmin), (xmax, ymax, zmax)); the grid's end points lie on them.
-    resolution : grid samples per axis (>= 2).
-    project : move vertices onto f = 0 by Newton steps (float64) and take normals from grad f.
+    resolution : grid samples per axis (an integer >= 2, or three).
+    project : move the vertices onto f = 0 in float64 (root finding along each marching-cubes
+        edge, Newton steps along grad f where that does not apply); False keeps marching
+        cubes' linear interpolation.  Normals come from -grad f either way.
     dtype : dtype of the grid evaluation (float32 is fast; vertices are float64 either way).
+    device : where f is evaluated.
 
     Returns
     -------
-    Mesh ; empty (with a warning) when f does not change sign in the bounds.
+    Mesh with vertices (V, 3) float64 in world coordinates, faces (F, 3) int64 oriented
+    outward, unit normals (V, 3).  Empty (with a RuntimeWarning) when f does not change
+    sign inside the bounds.  Vertices whose projection does not converge keep their
+    marching-cubes position; their number is given in a RuntimeWarning.
+
+    Raises
+    ------
+    ValueError for bad bounds or resolution, for a grid that cannot fit in memory (before
+    allocating; the message gives the GiB needed), and where f is NaN or inf.
+
+    Examples
+    --------
+    >>> from pyfrep_core.models import fig1_part
+    >>> m = polygonize(fig1_part, resolution=64)      # the model's default bounds
+    >>> abs(m.volume() - 0.98879) < 0.01, m.vertices.dtype, m.faces.shape[1]
+    (True, dtype('float64'), 3)
     """
     if bounds is None:
         bounds = getattr(f, "bounds", None)
         if bounds is None:
             raise ValueError("bounds must be given for a function without default bounds")
+    if getattr(f, "dim", 3) != 3:
+        raise ValueError(f"polygonize meshes 3-D models; this one has dim={f.dim}")
+    res = _resolution(resolution, 3)
     lo, hi = check_bounds(bounds, 3)
-    axes = grid_axes(bounds, resolution)
-    values = evaluate_grid(f, bounds, resolution, dtype=dtype, device=device)
-    if not np.isfinite(values).all():
-        raise ValueError("f is not finite on the grid (NaN or inf values)")
-    if values.min() >= 0.0 or values.max() <= 0.0:
+    _check_memory(res, dtype)
+    axes = grid_axes((lo, hi), res)
+    values, vmin, vmax = _evaluate_grid(f, axes, dtype, device, None)
+    if vmin >= 0.0 or vmax <= 0.0:
         warnings.warn("polygonize: f does not change sign inside the bounds; empty mesh", RuntimeWarning, stacklevel=2)
         return Mesh(np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64), np.zeros((0, 3)))
-    spacing = tuple(float(a[1] - a[0]) for a in axes)
-    verts, faces, _, _ = marching_cubes(values, level=0.0, spacing=spacing, gradient_direction="descent")
-    verts = verts.astype(np.float64) + np.asarray(lo)
+    index_verts, faces, _, _ = marching_cubes(values, level=0.0, gradient_direction="descent")
     # skimage orients faces so that the right-hand normal points toward increasing f (inward here)
-    faces = faces[:, ::-1].astype(np.int64)
-    x = torch.as_tensor(verts, dtype=torch.float64, device=device)
-    f64 = f
+    faces = np.ascontiguousarray(faces[:, ::-1], dtype=np.int64)
+    origin = np.asarray(lo)
+    spacing = np.array([a[1] - a[0] for a in axes])
     if project:
-        cell = float(np.linalg.norm(spacing))
-        proj = project_to_surface(f64, x, max_step=cell, max_distance=cell, warn=False)
-        x, gradient = proj.points, proj.gradient
+        verts, gradient, n_failed = _project_vertices(f, values, index_verts, origin, spacing, (lo, hi), device)
+        if n_failed:
+            warnings.warn(
+                f"polygonize: {n_failed} of {len(verts)} vertices could not be moved onto f = 0; "
+                "they keep their marching-cubes position",
+                RuntimeWarning,
+                stacklevel=2,
+            )
     else:
-        from .diff import grad
+        verts = origin + index_verts.astype(np.float64) * spacing
+        gradient = _value_and_grad(f, verts, device)[1]
+    return Mesh(verts, faces, _normals(gradient, verts, faces))
 
-        gradient = grad(f64, x)
-    verts = x.cpu().numpy()
-    g = gradient.cpu().numpy()
-    normals = -g / np.maximum(np.linalg.norm(g, axis=1, keepdims=True), np.finfo(np.float64).tiny)
-    verts = np.clip(verts, lo, hi)
-    return Mesh(verts, faces, normals)
+
+def _tolerance(lo: Any, hi: Any) -> float:
+    """Distance tolerance of the projection: 100 ulp of the largest coordinate (as project_to_surface)."""
+    return 100.0 * float(np.finfo(np.float64).eps) * max(1.0, float(np.abs([lo, hi]).max()))
+
+
+def _f64(f: Callable, x: np.ndarray, device: Any) -> np.ndarray:
+    """f at points x (N, 3) in float64, forward only, in chunks."""
+    out = np.empty(len(x))
+    with torch.no_grad():
+        for s in range(0, len(x), ROOT_CHUNK):
+            t = torch.as_tensor(x[s : s + ROOT_CHUNK], dtype=torch.float64, device=device)
+            out[s : s + ROOT_CHUNK] = f(t).cpu().numpy()
+    return out
+
+
+def _value_and_grad(f: Callable, x: np.ndarray, device: Any) -> tuple[np.ndarray, np.ndarray]:
+    """f and grad f at points x (N, 3) in float64 (numpy out)."""
+    if len(x) == 0:
+        return np.zeros(0), np.zeros((0, 3))
+    value, gradient = value_and_grad(f, torch.as_tensor(x, dtype=torch.float64, device=device))
+    return value.cpu().numpy(), gradient.cpu().numpy()
+
+
+def _project_vertices(
+    f: Callable,
+    values: np.ndarray,
+    index_verts: np.ndarray,
+    origin: np.ndarray,
+    spacing: np.ndarray,
+    bounds: Any,
+    device: Any,
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """Vertices on f = 0 (float64), grad f there, and how many could not be moved."""
+    tol = _tolerance(*bounds)
+    mc_verts = origin + index_verts.astype(np.float64) * spacing
+    # iterate until the next step is below 1e-9 cells; every result is then checked against 1e3 tol
+    verts, done = _roots_on_edges(f, values, index_verts, origin, spacing, 1e-9 * float(spacing.min()), device)
+    gradient = np.empty_like(verts)
+    if done.any():
+        value, gradient[done] = _value_and_grad(f, verts[done], device)
+        # an edge whose float32 grid signs were wrong in float64 has no root: check the residual
+        # |f| / |grad f| (|grad f| at least the median, so that f = 0 where grad f vanishes passes)
+        length = np.linalg.norm(gradient[done], axis=1)
+        distance = np.abs(value) / np.maximum(length, np.median(length))
+        wrong = np.flatnonzero(done)[~(distance <= 1e3 * tol)]
+        done[wrong] = False
+        verts[wrong] = mc_verts[wrong]
+    rest = np.flatnonzero(~done)
+    n_failed = 0
+    if len(rest):
+        # vertices on a grid node (a value exactly 0) or whose edge root failed: Newton along grad f
+        cell = float(np.linalg.norm(spacing))
+        start = torch.as_tensor(verts[rest], dtype=torch.float64, device=device)
+        proj = project_to_surface(f, start, tol=tol, max_step=cell, max_distance=cell, warn=False)
+        points, converged = proj.points.cpu().numpy(), proj.converged.cpu().numpy()
+        ok = converged & np.all((points >= bounds[0]) & (points <= bounds[1]), axis=1)
+        verts[rest[ok]] = points[ok]
+        gradient[rest] = proj.gradient.cpu().numpy()
+        failed = rest[~ok]
+        n_failed = len(failed)
+        if n_failed:
+            gradient[failed] = _value_and_grad(f, verts[failed], device)[1]
+    return verts, gradient, n_failed
+
+
+def _roots_on_edges(
+    f: Callable,
+    values: np.ndarray,
+    index_verts: np.ndarray,
+    origin: np.ndarray,
+    spacing: np.ndarray,
+    step_tol: float,
+    device: Any,
+    max_iter: int = 60,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Move each marching-cubes vertex to the root of f on its grid edge (float64).
+
+    A vertex lies on the edge from grid node ``i0`` to ``i0 + e_axis``; the grid values at
+    the two nodes have opposite signs, so the edge brackets a root.  On the edge parameter
+    t in [0, 1], starting from marching cubes' linear interpolation, secant steps (order
+    1.6) are taken while they stay inside the bracket, regula falsi on the bracket
+    otherwise, with bisection mixed in after 12 steps (Dekker's safeguards).  A vertex is
+    done when the next step is shorter than ``step_tol`` (length units; the step is then
+    taken) or f is exactly 0; the caller checks |f| / |grad f| at the result.
+
+    Returns the vertices (V, 3) in world coordinates (marching cubes' position where not
+    done) and the (V,) bool ``done``.
+    """
+    idx = index_verts.astype(np.float64)
+    base = np.floor(idx)
+    frac = idx - base
+    moving = frac > 0
+    verts = origin + idx * spacing
+    done = np.zeros(len(idx), dtype=bool)
+    sel = np.flatnonzero(moving.sum(axis=1) == 1)  # strictly inside one grid edge
+    axis = np.argmax(moving[sel], axis=1)
+    i0 = base[sel].astype(np.int64)
+    i1 = i0.copy()
+    i1[np.arange(len(sel)), axis] += 1
+    f0 = values[i0[:, 0], i0[:, 1], i0[:, 2]].astype(np.float64)
+    f1 = values[i1[:, 0], i1[:, 1], i1[:, 2]].astype(np.float64)
+    keep = f0 * f1 < 0
+    sel, axis, i0, f0, f1 = sel[keep], axis[keep], i0[keep], f0[keep], f1[keep]
+    start = origin + i0 * spacing  # world position of t = 0
+    h = spacing[axis]  # edge length
+    edge = np.zeros_like(start)
+    edge[np.arange(len(sel)), axis] = h  # t = 1 minus t = 0
+    # first guess: root of the cubic through the grid values at t = -1, 0, 1, 2 (error O(h^4)
+    # where f is smooth, against O(h^2) for marching cubes' linear interpolation)
+    c, slope = _cubic_root(values, i0, axis, f0, f1, frac[sel, axis])
+    root = np.full(len(sel), np.nan)
+    rows = np.arange(len(sel))
+    a = fa = p = fp = None  # bracket end opposite to c, and the previous iterate
+    for step in range(max_iter):
+        fc = _f64(f, start[rows] + c[:, None] * edge[rows], device)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            if a is None:  # the bracket: the grid end whose value has the other sign
+                a = np.where(np.sign(fc) == np.sign(f0), 1.0, 0.0)
+                fa = np.where(a == 1.0, f1, f0)
+                nxt = c - fc / slope  # Newton with the cubic's slope
+            else:  # the bracket becomes [previous iterate, c] when the sign changed
+                flip = np.sign(fc) != np.sign(fp)
+                a, fa = np.where(flip, p, a), np.where(flip, fp, fa)
+                nxt = c - fc * (c - p) / (fc - fp)  # secant
+            outside = ~((nxt > np.minimum(a, c)) & (nxt < np.maximum(a, c)))
+            if outside.any():
+                nxt[outside] = (c - fc * (c - a) / (fc - fa))[outside]  # regula falsi: inside
+        if step >= 12 and step % 2 == 0:
+            nxt = 0.5 * (a + c)
+        finished = (np.abs(nxt - c) * h[rows] <= step_tol) & np.isfinite(nxt)
+        exact = fc == 0
+        root[rows[finished]] = nxt[finished]
+        root[rows[exact]] = c[exact]
+        go = ~(finished | exact) & np.isfinite(fc)
+        rows, p, fp, c, a, fa = rows[go], c[go], fc[go], nxt[go], a[go], fa[go]
+        if len(rows) == 0:
+            break
+    found = np.isfinite(root)
+    verts[sel[found]] = start[found] + root[found, None] * edge[found]
+    done[sel[found]] = True
+    return verts, done
+
+
+def _cubic_root(
+    values: np.ndarray, i0: np.ndarray, axis: np.ndarray, f0: np.ndarray, f1: np.ndarray, t: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Root in (0, 1) and slope there of the cubic through the grid values at t = -1, 0, 1, 2 of each edge.
+
+    A missing neighbour (grid border) is replaced by the value that makes the third
+    difference zero (a quadratic, or linear with both missing).  Three Newton steps from
+    ``t`` (marching cubes' estimate); where they leave the edge, ``t`` is kept.
+    """
+    n = np.asarray(values.shape)[axis]
+    rows = np.arange(len(i0))
+    im, i2 = i0.copy(), i0.copy()
+    im[rows, axis] -= 1
+    i2[rows, axis] += 2
+    has_m, has_2 = im[rows, axis] >= 0, i2[rows, axis] < n
+    im[~has_m, axis[~has_m]] = 0
+    i2[~has_2, axis[~has_2]] = n[~has_2] - 1
+    fm = values[im[:, 0], im[:, 1], im[:, 2]].astype(np.float64)
+    f2 = values[i2[:, 0], i2[:, 1], i2[:, 2]].astype(np.float64)
+    fm = np.where(has_m, fm, np.where(has_2, 3 * f0 - 3 * f1 + f2, 2 * f0 - f1))
+    f2 = np.where(has_2, f2, 3 * f1 - 3 * f0 + fm)
+    # P(t) = f0 + b1 t + b2 t^2 + b3 t^3 (Lagrange on -1, 0, 1, 2 in power form)
+    b1 = -fm / 3 - f0 / 2 + f1 - f2 / 6
+    b2 = fm / 2 - f0 + f1 / 2
+    b3 = -fm / 6 + f0 / 2 - f1 / 2 + f2 / 6
+    r = t.copy()
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for _ in range(3):
+            r = r - (f0 + r * (b1 + r * (b2 + r * b3))) / (b1 + r * (2 * b2 + 3 * r * b3))
+        slope = b1 + r * (2 * b2 + 3 * r * b3)
+        good = (r > 0) & (r < 1) & np.isfinite(slope) & (slope * (f1 - f0) > 0)
+    return np.where(good, r, t), np.where(good, slope, f1 - f0)
+
+
+def _normals(gradient: np.ndarray, verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Unit outward normals -grad f / |grad f|; the area-weighted face normal where grad f vanishes."""
+    length = np.linalg.norm(gradient, axis=1)
+    good = np.isfinite(length) & (length > 0)
+    normals = np.zeros_like(verts)
+    normals[good] = -gradient[good] / length[good, None]
+    if not good.all() and len(faces):
+        a, b, c = (verts[faces[:, i]] for i in range(3))
+        face_n = np.cross(b - a, c - a)
+        acc = np.zeros_like(verts)
+        for k in range(3):
+            for d in range(3):
+                acc[:, d] += np.bincount(faces[:, k], weights=face_n[:, d], minlength=len(verts))
+        bad = ~good
+        norm = np.linalg.norm(acc[bad], axis=1, keepdims=True)
+        normals[bad] = acc[bad] / np.where(norm > 0, norm, 1.0)
+    return normals

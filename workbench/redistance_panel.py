@@ -30,12 +30,12 @@ __all__ = ["RedistancePanel", "redistance_panel", "trained_network"]
 
 def trained_network(result: Any) -> Callable:
     """The callable distance network in what ``redistance`` returned (the network itself or a result holding it)."""
-    for name in ("net", "network", "model", "distance", "sdf"):
+    if callable(result):  # pyfrep_core.redistancing.RedistancedSDF: the signed distance itself
+        return result
+    for name in ("sdf", "distance", "network"):
         candidate = getattr(result, name, None)
         if callable(candidate) and not isinstance(candidate, Model):
             return candidate
-    if callable(result):
-        return result
     raise TypeError(f"redistance returned {type(result).__name__}, which holds no callable network")
 
 
@@ -223,8 +223,9 @@ def redistance_panel(backend: str = "auto", models: dict[str, Model] | None = No
     if models is None:
         from .app import paper_models
 
-        models = paper_models()
+        models = paper_models(dim=3)  # redistance() trains on 3-D boxes
     if os.environ.get("PYFREP_QUICK", "") not in ("", "0"):
         kwargs.setdefault("slice_resolution", 64)
         kwargs.setdefault("distance_resolution", 40)
+        kwargs.setdefault("settings", {"steps": 200, "surface_resolution": 40, "pool_size": 1 << 13})
     return RedistancePanel(models, backend=backend, **kwargs)

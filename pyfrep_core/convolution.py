@@ -14,7 +14,9 @@ Argument conventions follow the paper's reference code: skeletons may be given f
 (``[x0, y0, z0, x1, y1, z1, ...]``) or as rows ((M, 3) points, (M, 3, 3) triangles); ``S`` is one
 value per element (or one number for all); angles of :func:`convArc` are in degrees.  All
 functions are vectorised over points *and* skeleton elements (broadcasting, evaluated in chunks
-of points to bound memory) and differentiable with respect to x, S, T and the skeleton.
+of points to bound memory) and differentiable with respect to x, S, T and the skeleton.  As for
+the primitives, a (B, 1) tensor for ``S`` or ``T`` (and ``R`` of :func:`convLineR`) gives (B, N)
+values for B parameter sets, which is how ``@model`` passes a batch.
 """
 
 from __future__ import annotations
@@ -78,13 +80,29 @@ def _per_element(v: Any, m: int, like: torch.Tensor, name: str, positive: bool =
     return t
 
 
-def _field(x: torch.Tensor, m: int, kernel: Callable[[torch.Tensor], torch.Tensor]) -> torch.Tensor:
-    """Sum over M elements of ``kernel(points (P, 1, 3)) -> (P, M)``, in chunks of points."""
+def _batchable(v: Any, m: int, like: torch.Tensor, name: str) -> torch.Tensor:
+    """Like :func:`_per_element`, but a (B, 1) tensor (B parameter sets, as ``@model`` passes
+    them) becomes (B, 1, 1): it broadcasts over (points, elements) and gives (B, ...) values."""
+    if isinstance(v, torch.Tensor) and v.ndim == 2 and v.shape[1] == 1:
+        t = v.to(device=like.device, dtype=like.dtype)
+        if not bool((t > 0).all()):
+            raise ValueError(f"{name} must be positive, got {v!r}")
+        return t.reshape(-1, 1, 1)
+    return _per_element(v, m, like, name)
+
+
+def _field(x: torch.Tensor, m: int, kernel: Callable[[torch.Tensor], torch.Tensor], batch: int = 1) -> torch.Tensor:
+    """Sum over M elements of ``kernel(points (P, 1, 3)) -> ([B,] P, M)``, in chunks of points."""
     check_points(x)
     flat = x.reshape(-1, 3)
-    chunk = max(1, _CHUNK // m)
+    chunk = max(1, _CHUNK // (m * batch))
     parts = [kernel(part[:, None, :]).sum(-1) for part in torch.split(flat, chunk)]
-    return torch.cat(parts).reshape(x.shape[:-1])
+    out = torch.cat(parts, dim=-1)
+    return out.reshape(*out.shape[:-1], *x.shape[:-1])
+
+
+def _batch(*values: torch.Tensor) -> int:
+    return max(v.shape[0] if v.ndim == 3 else 1 for v in values)
 
 
 def _segment_integral(t: torch.Tensor, h2: torch.Tensor, length: torch.Tensor, s: torch.Tensor) -> torch.Tensor:
@@ -121,7 +139,7 @@ def _segments(
         value = _segment_integral(t, (perp * perp).sum(-1), length, s)
         return value if weight is None else value * weight
 
-    return _field(x, begin.shape[0], kernel)
+    return _field(x, begin.shape[0], kernel, _batch(s) if weight is None else _batch(s, weight))
 
 
 @frep
@@ -146,13 +164,13 @@ def convPoint(x: torch.Tensor, vect: Skeleton, S: PerElement, T: float | torch.T
     tensor([0.7500, 0.0000])
     """
     centers = _rows(vect, x, 3, "vect")
-    s = _per_element(S, centers.shape[0], x, "S")
+    s = _batchable(S, centers.shape[0], x, "S")
 
     def kernel(p: torch.Tensor) -> torch.Tensor:
         r2 = ((p - centers) ** 2).sum(-1)
         return 1.0 / (1.0 + s * s * r2) ** 2
 
-    return _field(x, centers.shape[0], kernel) - T
+    return _field(x, centers.shape[0], kernel, _batch(s)) - T
 
 
 @frep
@@ -187,7 +205,7 @@ def convLine(x: torch.Tensor, begin: Skeleton, end: Skeleton, S: PerElement, T: 
     e = _rows(end, x, 3, "end")
     if b.shape != e.shape:
         raise ValueError(f"begin and end must hold the same number of points, got {b.shape[0]} and {e.shape[0]}")
-    return _segments(x, b, e, _per_element(S, b.shape[0], x, "S")) - T
+    return _segments(x, b, e, _batchable(S, b.shape[0], x, "S")) - T
 
 
 @frep
@@ -215,7 +233,7 @@ def convCurve(x: torch.Tensor, vect: Skeleton, S: PerElement, T: float | torch.T
     v = _rows(vect, x, 3, "vect")
     if v.shape[0] < 2:
         raise ValueError(f"vect must hold at least 2 points, got {v.shape[0]}")
-    return _segments(x, v[:-1], v[1:], _per_element(S, v.shape[0] - 1, x, "S")) - T
+    return _segments(x, v[:-1], v[1:], _batchable(S, v.shape[0] - 1, x, "S")) - T
 
 
 @frep
@@ -252,8 +270,8 @@ def convLineR(x: torch.Tensor, begin: Skeleton, end: Skeleton, S: PerElement, R:
     if b.shape != e.shape:
         raise ValueError(f"begin and end must hold the same number of points, got {b.shape[0]} and {e.shape[0]}")
     m = b.shape[0]
-    s = _per_element(S, m, x, "S")
-    r = _per_element(R, m, x, "R")
+    s = _batchable(S, m, x, "S")
+    r = _batchable(R, m, x, "R")
     length = (e - b).norm(dim=-1)
     # F_i at distance R_i from the midpoint: t = l/2, squared distance to the line R^2
     at_radius = _segment_integral(0.5 * length, r * r, length, s)
@@ -312,7 +330,7 @@ def _triangles(x: torch.Tensor, tri: torch.Tensor, s: torch.Tensor) -> torch.Ten
         # the reference code returns S^3 times this value (its thresholds scale accordingly)
         return (edge1 + edge2 + edge3) / (2.0 * q * s**4)
 
-    return _field(x, tri.shape[0], kernel)
+    return _field(x, tri.shape[0], kernel, _batch(s))
 
 
 @frep
@@ -343,7 +361,7 @@ def convTriangle(x: torch.Tensor, vect: Skeleton, S: PerElement, T: float | torc
     tensor([ True, False])
     """
     tri = _rows(vect, x, 9, "vect").reshape(-1, 3, 3)
-    return _triangles(x, tri, _per_element(S, tri.shape[0], x, "S")) - T
+    return _triangles(x, tri, _batchable(S, tri.shape[0], x, "S")) - T
 
 
 @frep
@@ -395,7 +413,7 @@ def convMesh(
             + ("; pass base=0 for 0-based faces" if base == 1 and lo == 0 else "")
         )
     triangles = verts[index.to(verts.device)]
-    return _triangles(x, triangles, _per_element(S, triangles.shape[0], x, "S")) - T
+    return _triangles(x, triangles, _batchable(S, triangles.shape[0], x, "S")) - T
 
 
 def _rotations(axis: torch.Tensor, angle: torch.Tensor) -> torch.Tensor:
@@ -472,7 +490,7 @@ def convArc(
     if ax.shape[0] != m or not bool((ax.norm(dim=-1) > 0).all()):
         raise ValueError(f"axis must hold 1 or {m} non-zero vectors, got {tuple(ax.shape)}")
     rot = _rotations(ax, _per_element(angle, m, x, "angle", positive=False) * (math.pi / 180.0))
-    s = _per_element(S, m, x, "S")
+    s = _batchable(S, m, x, "S")
     half = arc * (math.pi / 360.0)  # theta / 2 in radians, in (0, pi]
     sin_t, cos_t = torch.sin(2.0 * half), torch.cos(2.0 * half)
     # sin(theta/2) >= 0 on (0, pi]; clamp the rounding of sin(pi) (negative in float32) so a full
@@ -496,4 +514,4 @@ def convArc(
         j2 = ((big_p * sin_t - big_q * cos_t) / end + big_q / (big_b - big_p) + big_b * j1) / d2
         return r * j2
 
-    return _field(x, m, kernel) - T
+    return _field(x, m, kernel, _batch(s)) - T

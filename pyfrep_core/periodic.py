@@ -16,6 +16,8 @@ Conventions (period ``p``, applied to every coordinate, or per axis when ``p`` h
   symmetric about the cell centre (``sphere`` at the origin) is repeated exactly, without kinks.
 - ``rep(x, p)``: the point operation ``(..., 3) -> (..., 3)`` of the reference code, a sawtooth
   on each coordinate.
+- A tensor period of shape (B, 1) or (B, 3) (B parameter sets, as ``@model`` passes them) maps
+  points (N, 3) to (B, N, 3), so that a primitive composed with it gives (B, N) values.
 - ``sawtoothFourier``, ``triangleWaveFourier``: truncated Fourier series, smooth (C-infinity)
   everywhere, so gradients and curvatures of the composed field exist everywhere.  The truncated
   sawtooth has the Gibbs overshoot (see :func:`sawtoothFourier`); the triangle wave converges
@@ -45,7 +47,10 @@ __all__ = [
 def _period(period: Period, like: torch.Tensor) -> float | torch.Tensor:
     """A float, or a tensor on ``like``'s device/dtype; plain numbers are checked (> 0, finite)."""
     if isinstance(period, torch.Tensor):
-        return period.to(device=like.device, dtype=like.dtype)
+        p = period.to(device=like.device, dtype=like.dtype)
+        if p.ndim == 2 and like.ndim >= 2:  # a batch (B, 1) or (B, 3) against points (..., 3)
+            p = p.reshape(p.shape[0], *([1] * (like.ndim - 1)), p.shape[-1])
+        return p
     values = [period] if isinstance(period, int | float) else list(period)
     for v in values:
         if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):

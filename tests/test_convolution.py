@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from pyfrep_core import convArc, convCurve, convLine, convLineR, convMesh, convPoint, convTriangle
+from pyfrep_core import Param, convArc, convCurve, convLine, convLineR, convMesh, convPoint, convTriangle, model
 
 F64 = torch.float64
 
@@ -236,6 +236,35 @@ def test_parameters_are_differentiable():
         for e in torch.eye(3, dtype=F64)
     ]
     np.testing.assert_allclose(de.numpy(), fd, atol=1e-7)
+
+
+def test_batched_parameters_give_one_row_per_set():
+    x = randn(9, 3, seed=8)
+    s_batch = torch.tensor([[1.0], [2.5], [4.0]], dtype=F64)
+    tri = [0, 0, 0, 1, 0, 0, 0, 1, 0]
+    calls = [
+        lambda s: convPoint(x, [0, 0, 0, 1, 1, 1], s, 0.1),
+        lambda s: convLine(x, [0, 0, 0], [1, 0, 0], s, 0.1),
+        lambda s: convCurve(x, [0, 0, 0, 1, 0, 0, 1, 1, 0], s, 0.1),
+        lambda s: convLineR(x, [0, 0, 0], [1, 0, 0], s, 0.2),
+        lambda s: convTriangle(x, tri, s, 0.1),
+        lambda s: convMesh(x, tri, [1, 2, 3], s, 0.1),
+        lambda s: convArc(x, [0, 0, 0], 1.0, 270.0, [0, 0, 1], 0.0, s, 0.1),
+    ]
+    for call in calls:
+        batch = call(s_batch)
+        assert batch.shape == (3, 9)
+        singles = torch.stack([call(float(v)) for v in s_batch[:, 0]])
+        torch.testing.assert_close(batch, singles, rtol=0, atol=1e-14)
+
+    # through @model, which passes (B,) parameters as (B, 1)
+    @model(S=Param(2.0, 0.5, 5.0), R=Param(0.2, 0.05, 0.5))
+    def rod(p, S, R):
+        return convLineR(p, [0, 0, 0], [1, 0, 0], S, R)
+
+    out = rod(x, S=torch.tensor([1.0, 3.0], dtype=F64), R=torch.tensor([0.1, 0.3], dtype=F64))
+    assert out.shape == (2, 9)
+    torch.testing.assert_close(out[1], convLineR(x, [0, 0, 0], [1, 0, 0], 3.0, 0.3), rtol=0, atol=1e-14)
 
 
 def test_numpy_float32_and_shapes():

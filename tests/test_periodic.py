@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from pyfrep_core import rep, sawtooth, sawtoothFourier, sphere, triangleWave, triangleWaveFourier
+from pyfrep_core import Param, model, rep, sawtooth, sawtoothFourier, sphere, triangleWave, triangleWaveFourier
 
 F64 = torch.float64
 
@@ -102,6 +102,22 @@ def test_period_is_differentiable():
     # the Fourier series is a smooth function of the period too
     (dp,) = torch.autograd.grad(triangleWaveFourier(x, p, 5).sum(), p)
     assert torch.isfinite(dp)
+
+
+def test_batched_period_through_a_model():
+    @model(p=Param(1.0, 0.5, 2.0))
+    def spheres(x, p):
+        return sphere(rep(x, p), r=0.2)
+
+    x = torch.tensor([[1.0, 0.0, 0.0], [0.75, 0.75, 0.0]], dtype=F64)
+    out = spheres(x, p=torch.tensor([1.0, 1.5, 0.75], dtype=F64))
+    assert out.shape == (3, 2)
+    for i, p in enumerate((1.0, 1.5, 0.75)):
+        torch.testing.assert_close(out[i], torch.as_tensor(_lattice_sphere(x.numpy(), p, 0.2)), rtol=0, atol=1e-12)
+    # per-axis periods for B sets: (B, 3)
+    per_axis = rep(x, torch.tensor([[1.0, 2.0, 3.0], [0.5, 0.5, 0.5]], dtype=F64))
+    assert per_axis.shape == (2, 2, 3)
+    torch.testing.assert_close(per_axis[0], rep(x, (1.0, 2.0, 3.0)))
 
 
 def test_numpy_io_float32_and_shapes():

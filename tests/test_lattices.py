@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from pyfrep_core import SchwarzD, SchwarzP, gyroid, gyroidSheet, lidinoid, spinodoid
+from pyfrep_core import Param, SchwarzD, SchwarzP, gyroid, gyroidSheet, intersection, lidinoid, model, spinodoid
 from pyfrep_core.lattices import spinodoid_directions
 
 TPMS = [gyroid, SchwarzP, SchwarzD, lidinoid]
@@ -121,6 +121,17 @@ def test_parameters_differentiable_and_batched():
     batch = gyroid(x, c=torch.tensor([[0.0], [0.5]], dtype=torch.float64))
     assert batch.shape == (2, 50)
     torch.testing.assert_close(batch[1] - batch[0], torch.full((50,), 0.5, dtype=torch.float64))
+
+
+def test_batches_through_a_model():
+    @model(t=Param(0.5, 0.1, 1.2), rho=Param(0.4, 0.1, 0.9))
+    def part(x, t, rho):
+        return intersection(gyroidSheet(x, c1=t, c2=-t), spinodoid(x, wavenumber=8.0, numwaves=64, density=rho))
+
+    x = _points(20, seed=9, scale=0.5)
+    out = part(x, t=torch.tensor([0.3, 0.9], dtype=torch.float64), rho=torch.tensor([0.2, 0.7], dtype=torch.float64))
+    assert out.shape == (2, 20)
+    torch.testing.assert_close(out[1], part(x, t=0.9, rho=0.7), rtol=0, atol=1e-12)
 
 
 def test_numpy_in_numpy_out_and_float32():

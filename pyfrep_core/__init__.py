@@ -25,6 +25,7 @@ from .convolution import *  # noqa: F403
 from .convolution import __all__ as _convolution_all
 from .diff import grad, project_to_surface, value_and_grad
 from .fitting import FitResult, fit
+from .io import load_mesh, load_points, save_mesh, save_points
 from .lattices import *  # noqa: F403
 from .lattices import __all__ as _lattices_all
 from .mesh import Mesh, polygonize
@@ -50,10 +51,14 @@ __all__ = [
     "Progress",
     "fit",
     "grad",
+    "load_mesh",
+    "load_points",
     "model",
     "polygonize",
     "project_to_surface",
     "sample_surface",
+    "save_mesh",
+    "save_points",
     "sdf",
     "value_and_grad",
     *_convolution_all,

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib
+import importlib.util
 import time
 
 import numpy as np
@@ -56,14 +57,16 @@ def test_sensitivity_to_cylinder_radius_lives_on_the_cylinder_walls(panel):
     v, x = panel.scalars, panel.mesh.vertices
     assert panel.last_moved == "r" and v.shape == (panel.mesh.n_vertices,)
     radial = np.stack([np.hypot(x[:, 1], x[:, 2]), np.hypot(x[:, 0], x[:, 2]), np.hypot(x[:, 0], x[:, 1])])
-    wall_distance = np.abs(radial - r).min(axis=0)
+    gaps = np.sort(np.abs(radial - r), axis=0)
+    wall_distance, second_wall = gaps[0], gaps[1]
     moving = np.abs(v) > 1e-6
     assert moving.sum() > 100  # the walls are there and they move
     assert wall_distance[moving].max() < 1e-6  # ... and nothing else moves
-    # away from the edges, a wall moves into the solid at unit speed: v = -(-2r)/(2r) = 1
+    # away from the edges (sphere, cube faces, where two walls cross) a wall moves into the
+    # solid at unit speed: v = -(-2r)/(2r) = 1
     sphere_gap = 1 - np.linalg.norm(x, axis=1)
     slab_gap = 0.75 - np.abs(x).max(axis=1)
-    clear = (wall_distance < 1e-9) & (sphere_gap > 0.05) & (slab_gap > 0.05)
+    clear = (wall_distance < 1e-9) & (second_wall > 0.05) & (sphere_gap > 0.05) & (slab_gap > 0.05)
     assert clear.sum() > 50
     np.testing.assert_allclose(v[clear], 1.0, atol=1e-9)
     # the view is coloured by it on a map centred on zero
@@ -232,3 +235,100 @@ def test_app_has_every_tab_and_survives_a_missing_module(monkeypatch):
     monkeypatch.setattr(app_module, "TABS", (("Shape", "workbench.no_such_panel:build"),))
     broken = App(backend="image")
     assert "not available yet" in broken.panels["Shape"].value
+
+
+@model(bounds=((-1.2,) * 3, (1.2,) * 3), r=Param(0.8, 0.5, 1.0, label="radius"))
+def ball_model(x, r):
+    return sphere(x, r=r)
+
+
+def test_slice_panel_shows_f_and_the_true_distance_with_errors():
+    from workbench.slice_panel import slice_panel
+
+    p = slice_panel(models={"ball": ball_model}, resolution=41, distance_resolution=24, threaded=False)
+    assert bytes(p.image.value).startswith(b"\x89PNG")
+    lo, hi = ball_model.bounds
+    u = np.linspace(lo[0], hi[0], 41)
+    uu, vv = np.meshgrid(u, u, indexing="xy")
+    rho = np.hypot(uu, vv)
+    exact = 0.8 - rho  # signed distance to the sphere in the plane z = 0 (positive inside)
+    np.testing.assert_allclose(p.values["true distance"], exact, atol=2e-3)
+    np.testing.assert_allclose(p.values["f"], 0.8**2 - rho**2, atol=1e-12)
+    mean_err = np.abs((0.8**2 - rho**2) - exact).mean()
+    assert p.errors["f"][0] == pytest.approx(mean_err, rel=1e-2)
+    if importlib.util.find_spec("pyfrep_core.normalization") is None:
+        assert "omega_1: not available yet" in p.status.value
+    else:  # normalized functions are closer to the distance than f itself
+        assert p.errors["omega_1"][0] < p.errors["f"][0]
+    # moving the plane to z = 0.6 shrinks the circle to radius sqrt(0.8^2 - 0.6^2)
+    p.offset.value = 0.6
+    inside = p.values["f"] > 0
+    assert rho[inside].max() <= np.sqrt(0.8**2 - 0.6**2) + 1e-12
+
+
+def test_redistance_panel_trains_charts_and_hands_the_network_to_the_slices():
+    pytest.importorskip("pyfrep_core.redistancing")
+    from workbench.redistance_panel import redistance_panel
+    from workbench.slice_panel import slice_panel
+
+    tiny = {"steps": 30, "width": 16, "depth": 2, "surface_resolution": 24, "pool_size": 2048, "batch": 256}
+    p = redistance_panel(models={"ball": ball_model}, settings=tiny, slice_resolution=32, distance_resolution=24)
+    s = slice_panel(models={"ball": ball_model}, resolution=24, distance_resolution=24, threaded=False)
+    p.on_trained.append(s.set_network)
+    run = p.start(every=1)
+    seen = []
+    while run.running:
+        seen.append(p.loss_chart.n_points)
+        time.sleep(0.01)
+    network = p.wait()
+    assert any(0 < n < p.loss_chart.n_points for n in seen)  # the chart grew while training
+    assert p.loss_chart.n_points >= 10 and "trained in" in p.status.value and "stopped" not in p.status.value
+    assert bytes(p.slices.value).startswith(b"\x89PNG")
+    # the network keeps the zero set (sign of f) and is a distance-like field
+    x = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 1.1]])
+    d = np.asarray(network(x)).ravel()
+    assert d[0] > 0 > d[1]
+    assert "redistanced" in s.values and "redistanced" in s.errors  # handed over to the slice panel
+
+    run = p.start(steps=100_000, every=1)
+    while run.running and len(p.events) < 3:
+        time.sleep(0.01)
+    p.stop_button.click()
+    p.wait(timeout=120)
+    assert "stopped early" in p.status.value and len(p.events) < 1000
+
+
+def test_curvature_panel_on_a_sphere():
+    pytest.importorskip("pyfrep_core.curvature")
+    from workbench.curvature_panel import curvature_panel
+
+    p = curvature_panel(models={"ball": ball_model}, resolution=32, backend="image", threaded=False)
+    try:
+        t = p.table
+        np.testing.assert_allclose(np.abs(t["H"]), 1 / 0.8, rtol=1e-6)
+        np.testing.assert_allclose(t["K"], 1 / 0.8**2, rtol=1e-6)
+        np.testing.assert_allclose(t["kmin"], t["kmax"], atol=1e-6)
+        assert bytes(p.histogram.value).startswith(b"\x89PNG") and "median" in p.status.value
+        before = p.view.widget.value
+        p.quantity.value = "Gaussian K"
+        assert p.view.widget.value != before or np.ptp(t["K"]) < 1e-9
+        assert "K: median" in p.status.value
+    finally:
+        p.view.close()
+
+
+def test_fitting_panel_loads_a_cloud_from_xyz(tmp_path):
+    from pyfrep_core.io import save_points
+    from workbench.fitting_panel import fitting_panel
+
+    p = fitting_panel(backend="image", n_points=200, seed=5)
+    try:
+        pts = p.points[:150]
+        save_points(tmp_path / "cloud.xyz", pts)
+        p.load_cloud(str(tmp_path / "cloud.xyz"))
+        np.testing.assert_allclose(p.points, pts)
+        assert p.truth is None and p.source.value == "file" and "150 points loaded" in p.status.value
+        p.load_cloud(str(tmp_path / "missing.xyz"))
+        assert "FileNotFoundError" in p.status.value and len(p.points) == 150
+    finally:
+        p.view.close()

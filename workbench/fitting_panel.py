@@ -84,7 +84,7 @@ class FittingPanel(widgets.VBox):
             value=noise, min=0.0, max=1.0, step=0.005, description="noise", layout=lay
         )
         self.seed = widgets.IntText(value=seed, description="seed", layout=lay)
-        self.upload = widgets.FileUpload(accept=".xyz,.ply,.txt,.csv", multiple=False, description="XYZ/PLY")
+        self.upload = widgets.FileUpload(accept=".xyz,.ply", multiple=False, description="XYZ/PLY")
         self.effort = widgets.Dropdown(options=list(EFFORT), value=effort, description="effort", layout=lay)
         self.new_cloud = widgets.Button(description="New cloud")
         self.run_button = widgets.Button(description="Run", button_style="success")
@@ -153,7 +153,8 @@ class FittingPanel(widgets.VBox):
         from pyfrep_core.io import load_points
 
         try:
-            self.points = np.asarray(load_points(path), dtype=np.float64)
+            cloud = load_points(path)
+            self.points = np.asarray(getattr(cloud, "points", cloud), dtype=np.float64)
         except Exception as err:
             self._error(err)
             return

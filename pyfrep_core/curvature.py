@@ -1,0 +1,285 @@
+"""Curvatures of the level sets of f from its autograd derivatives (paper section 5.1).
+
+No surface fitting: the curvatures of {f = c} through a point come from grad f and the
+Hessian of f there.  Sign convention (f > 0 inside, n = grad f / |grad f| the inward normal):
+convex solids have positive curvatures; a sphere of radius r has H = 1/r, K = 1/r^2.
+
+Formulas, with g = grad f, Hf the Hessian, n = g/|g|:
+
+- mean curvature, paper eq. for H: ``H = -1/2 div(n)``.  As
+  ``div(g/|g|) = tr Hf / |g| - g^T Hf g / |g|^3``, in closed form
+  ``H = (g^T Hf g - |g|^2 tr Hf) / (2 |g|^3)``.
+  (Sphere f = r^2 - |x|^2: g = -2x, Hf = -2I, |g| = 2r gives H = (-8r^2 + 24r^2)/(16r^3) = 1/r.)
+- Gaussian curvature, paper eq. for K (Goldman 2005, Th. 4.1): ``K = g adj(Hf) g^T / |g|^4``.
+- Both are invariants of the shape operator ``S = -T Hf T^T / |g|`` written in an
+  orthonormal tangent frame T (rows orthogonal to n): ``H = tr(S)/2``, ``K = det(S)``,
+  because ``tr(T Hf T^T) = tr Hf - n^T Hf n`` and ``det(T Hf T^T) = n^T adj(Hf) n``
+  (the (n, n) cofactor of Hf in the basis (n, T)).  The eigenvalues of S are the principal
+  curvatures ``kmin <= kmax`` (= H -+ sqrt(H^2 - K), with H^2 - K >= 0 by construction) and
+  its eigenvectors, mapped back by T, the principal directions.
+
+The fast path (:func:`curvatures` and the single-quantity functions) needs only T Hf T^T:
+2 Hessian-vector products after the gradient, i.e. 3 backward passes for everything, all
+quantities from ONE evaluation of f (:func:`pyfrep_core.diff.tangent_hessian`).
+:func:`curvatures_from_hessian` applies the paper's formulas to a full Hessian; the tests
+check that both agree.
+
+Where grad f = 0 (or is not finite) the curvatures are undefined: NaN there and only there.
+At a crease of an R-function (f1 = f2 = 0 exactly) the curvature is infinite in theory;
+the values are then huge (up to ~1e150 in float64) but not NaN.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any, NamedTuple
+
+import numpy as np
+import torch
+
+from .diff import _map_chunks, _out, _points, _tangent_hessian, tangent_frame
+
+__all__ = [
+    "Curvatures",
+    "curvatures",
+    "mean_curvature",
+    "gaussian_curvature",
+    "principal_curvatures",
+    "principal_directions",
+    "curvatures_from_hessian",
+    "attach_curvatures",
+]
+
+
+class Curvatures(NamedTuple):
+    """Curvatures at N points (numpy or torch, following the input)."""
+
+    H: Any  # (N,) mean curvature (kmin + kmax) / 2
+    K: Any  # (N,) Gaussian curvature kmin * kmax
+    kmin: Any  # (N,) smaller principal curvature
+    kmax: Any  # (N,) larger principal curvature
+    dmin: Any  # (N, 3) unit principal direction of kmin (tangent to the surface)
+    dmax: Any  # (N, 3) unit principal direction of kmax
+
+
+def _from_shape_operator(g: torch.Tensor, frame: torch.Tensor, th: torch.Tensor) -> Curvatures:
+    """Curvatures from the tangent Hessian ``th = T Hf T^T`` (N, 2, 2) and the gradient (N, 3)."""
+    norm = torch.linalg.vector_norm(g, dim=-1)
+    undefined = ~(torch.isfinite(norm) & (norm > 0))
+    s = -th / torch.where(undefined, torch.ones_like(norm), norm)[:, None, None]
+    a, b, c = s[:, 0, 0], s[:, 0, 1], s[:, 1, 1]
+    mean = 0.5 * (a + c)
+    radius = torch.hypot(0.5 * (a - c), b)  # sqrt(H^2 - K) without cancellation, >= 0
+    kmin, kmax = mean - radius, mean + radius
+    gauss = a * c - b * b
+    # the eigenvector of kmax in the frame is (cos t, sin t) with tan 2t = 2b / (a - c)
+    angle = 0.5 * torch.atan2(2.0 * b, a - c)
+    cos, sin = torch.cos(angle)[:, None], torch.sin(angle)[:, None]
+    dmax = cos * frame[:, 0] + sin * frame[:, 1]
+    dmin = -sin * frame[:, 0] + cos * frame[:, 1]
+    nan = torch.full_like(mean, float("nan"))
+    values = [torch.where(undefined, nan, v) for v in (mean, gauss, kmin, kmax)]
+    dirs = [torch.where(undefined[:, None], nan[:, None], d) for d in (dmin, dmax)]
+    return Curvatures(*values, *dirs)
+
+
+def _curvatures(f: Callable, x: Any, create_graph: bool, chunk: int | None) -> tuple[Curvatures, bool, tuple]:
+    t, was_numpy, batch = _points(x, dims=3)
+
+    def one(c: torch.Tensor) -> Curvatures:
+        _, g, frame, th = _tangent_hessian(f, c, create_graph)
+        return _from_shape_operator(g, frame, th)
+
+    out = one(t) if create_graph else Curvatures(*_map_chunks(one, t, chunk))
+    return out, was_numpy, batch
+
+
+def curvatures(f: Callable, x: Any, create_graph: bool = False, chunk: int | None = None) -> Curvatures:
+    """Mean, Gaussian and principal curvatures and principal directions of the level sets of f at x.
+
+    All from one evaluation of f: the gradient and two Hessian-vector products (3 backward
+    passes), see the module notes for the formulas and the sign convention.
+
+    Parameters
+    ----------
+    f : callable (N, 3) -> (N,), f > 0 inside.
+    x : (N, 3) points (numpy or torch, float32 or float64, any device); usually on f = 0
+        (mesh vertices projected onto the surface), else the curvatures are those of the
+        level set through each point.
+    create_graph : keep the graph (e.g. a curvature term in a loss); no chunking then.
+    chunk : points per pass (default: see :mod:`pyfrep_core.diff`).
+
+    Returns
+    -------
+    Curvatures(H, K, kmin, kmax, dmin, dmax); NaN where grad f = 0.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from pyfrep_core import sphere
+    >>> c = curvatures(lambda p: sphere(p, r=2.0), np.array([[0.0, 0.0, 2.0], [1.2, 0.0, 1.6]]))
+    >>> c.H, c.K, c.kmin, c.kmax
+    (array([0.5, 0.5]), array([0.25, 0.25]), array([0.5, 0.5]), array([0.5, 0.5]))
+    """
+    out, was_numpy, batch = _curvatures(f, x, create_graph, chunk)
+    return _out(out, was_numpy, batch)
+
+
+def mean_curvature(f: Callable, x: Any, create_graph: bool = False, chunk: int | None = None) -> Any:
+    """Mean curvature H = -1/2 div(grad f / |grad f|) (paper eq. for H), shape (N,).
+
+    For points in the plane (N, 2) this is the curvature of the curve f = c,
+    ``-div(grad f / |grad f|)`` (a circle of radius r: 1/r).  NaN where grad f = 0.
+
+    Examples
+    --------
+    >>> import torch
+    >>> from pyfrep_core import cylZ
+    >>> mean_curvature(lambda p: cylZ(p, r=0.5), torch.tensor([[0.5, 0.0, 3.0]], dtype=torch.float64))
+    tensor([1.], dtype=torch.float64)
+    """
+    t, was_numpy, batch = _points(x, dims=(2, 3))
+
+    def one(c: torch.Tensor) -> tuple[torch.Tensor]:
+        _, g, _, th = _tangent_hessian(f, c, create_graph)
+        norm = torch.linalg.vector_norm(g, dim=-1)
+        undefined = ~(torch.isfinite(norm) & (norm > 0))
+        # H = tr(S) / (d - 1) with the shape operator S = -T Hf T^T / |g|
+        h = -th.diagonal(dim1=-2, dim2=-1).sum(-1) / ((c.shape[-1] - 1) * torch.where(undefined, 1.0, norm))
+        return (torch.where(undefined, torch.full_like(h, float("nan")), h),)
+
+    (h,) = one(t) if create_graph else _map_chunks(one, t, chunk)
+    return _out(h, was_numpy, batch)
+
+
+def gaussian_curvature(f: Callable, x: Any, create_graph: bool = False, chunk: int | None = None) -> Any:
+    """Gaussian curvature K = grad f adj(Hf) grad f^T / |grad f|^4 (paper eq. for K), shape (N,).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from pyfrep_core import sphere
+    >>> gaussian_curvature(lambda p: sphere(p, r=0.5), np.array([[0.0, 0.5, 0.0]]))
+    array([4.])
+    """
+    out, was_numpy, batch = _curvatures(f, x, create_graph, chunk)
+    return _out(out.K, was_numpy, batch)
+
+
+def principal_curvatures(f: Callable, x: Any, create_graph: bool = False, chunk: int | None = None) -> tuple:
+    """Principal curvatures (kmin, kmax), each (N,): ``H -+ sqrt(max(H^2 - K, 0))``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from pyfrep_core import cylX
+    >>> principal_curvatures(lambda p: cylX(p, r=0.25), np.array([[1.0, 0.0, 0.25]]))
+    (array([0.]), array([4.]))
+    """
+    out, was_numpy, batch = _curvatures(f, x, create_graph, chunk)
+    return _out((out.kmin, out.kmax), was_numpy, batch)
+
+
+def principal_directions(f: Callable, x: Any, create_graph: bool = False, chunk: int | None = None) -> tuple:
+    """Unit principal directions (dmin, dmax), each (N, 3), tangent to the level set.
+
+    They are the eigenvectors of the shape operator restricted to the tangent plane, for
+    kmin and kmax.  At umbilic points (kmin = kmax) every tangent direction is principal and
+    an arbitrary orthonormal pair is returned.  NaN where grad f = 0.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from pyfrep_core import cylZ
+    >>> dmin, dmax = principal_directions(lambda p: cylZ(p, r=1.0), np.array([[1.0, 0.0, 0.0]]))
+    >>> np.abs(dmin).round(12), np.abs(dmax).round(12)
+    (array([[0., 0., 1.]]), array([[0., 1., 0.]]))
+    """
+    out, was_numpy, batch = _curvatures(f, x, create_graph, chunk)
+    return _out((out.dmin, out.dmax), was_numpy, batch)
+
+
+def curvatures_from_hessian(g: Any, hess: Any) -> Curvatures:
+    """The paper's formulas applied to a gradient (N, 3) and a full Hessian (N, 3, 3).
+
+    ``H = (g^T Hf g - |g|^2 tr Hf) / (2 |g|^3)``, ``K = g adj(Hf) g^T / |g|^4``,
+    ``kmin, kmax = H -+ sqrt(max(H^2 - K, 0))``; directions from Hf projected on a tangent
+    frame.  Use it with a Hessian from :func:`pyfrep_core.diff.hessian` (or any other
+    source); :func:`curvatures` gets the same values with one backward pass less.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> g = np.array([[0.0, 0.0, -2.0]])   # sphere r = 1 at its north pole
+    >>> c = curvatures_from_hessian(g, -2.0 * np.eye(3)[None])
+    >>> c.H, c.K
+    (array([1.]), array([1.]))
+    """
+    gt, was_numpy = (torch.from_numpy(np.asarray(g)), True) if not isinstance(g, torch.Tensor) else (g, False)
+    ht = torch.from_numpy(np.asarray(hess)) if not isinstance(hess, torch.Tensor) else hess
+    if gt.ndim != 2 or gt.shape[-1] != 3 or ht.shape != (gt.shape[0], 3, 3):
+        raise ValueError(f"g must be (N, 3) and hess (N, 3, 3), got {tuple(gt.shape)} and {tuple(ht.shape)}")
+    ht = 0.5 * (ht + ht.transpose(1, 2))
+    norm = torch.linalg.vector_norm(gt, dim=-1)
+    undefined = ~(torch.isfinite(norm) & (norm > 0))
+    safe = torch.where(undefined, torch.ones_like(norm), norm)
+    ghg = torch.einsum("ni,nij,nj->n", gt, ht, gt)
+    trace = ht.diagonal(dim1=-2, dim2=-1).sum(-1)
+    mean = (ghg - norm**2 * trace) / (2.0 * safe**3)
+    gauss = torch.einsum("ni,nij,nj->n", gt, _adjugate3(ht), gt) / safe**4
+    root = torch.sqrt(torch.clamp(mean * mean - gauss, min=0.0))
+    frame = tangent_frame(gt / safe[:, None])
+    th = torch.einsum("nai,nij,nbj->nab", frame, ht, frame)
+    dirs = _from_shape_operator(gt, frame, th)
+    nan = torch.full_like(mean, float("nan"))
+    values = [torch.where(undefined, nan, v) for v in (mean, gauss, mean - root, mean + root)]
+    out = Curvatures(*values, dirs.dmin, dirs.dmax)
+    return _out(out, was_numpy)
+
+
+def _adjugate3(m: torch.Tensor) -> torch.Tensor:
+    """Adjugate (transposed cofactor matrix) of (N, 3, 3) matrices: adj(M) M = det(M) I."""
+    rows = []
+    for i in range(3):
+        row = []
+        for j in range(3):
+            # cofactor C_ji, with the cyclic index trick: no sign bookkeeping
+            a, b = (j + 1) % 3, (j + 2) % 3
+            c, d = (i + 1) % 3, (i + 2) % 3
+            row.append(m[:, a, c] * m[:, b, d] - m[:, a, d] * m[:, b, c])
+        rows.append(torch.stack(row, dim=-1))
+    return torch.stack(rows, dim=1)
+
+
+CURVATURE_FIELDS = {
+    "mean_curvature": "H",
+    "gaussian_curvature": "K",
+    "kmin": "kmin",
+    "kmax": "kmax",
+    "principal_direction_min": "dmin",
+    "principal_direction_max": "dmax",
+}
+
+
+def attach_curvatures(mesh: Any, f: Callable, chunk: int | None = None) -> Any:
+    """Curvatures of f at a mesh's vertices, stored in ``mesh.point_data`` (returns the mesh).
+
+    The vertices are used as they are: :func:`pyfrep_core.polygonize` has already moved them
+    onto f = 0.  Keys: ``mean_curvature``, ``gaussian_curvature``, ``kmin``, ``kmax`` (V,) and
+    ``principal_direction_min``, ``principal_direction_max`` (V, 3), float64; they are written
+    with the mesh (PLY/VTK) and colour it in the workbench.
+
+    Examples
+    --------
+    >>> from pyfrep_core import polygonize, sphere
+    >>> ball = lambda p: sphere(p, r=1.0)
+    >>> m = attach_curvatures(polygonize(ball, ((-1.1,) * 3, (1.1,) * 3), 16), ball)
+    >>> bool(abs(m.point_data["mean_curvature"] - 1.0).max() < 1e-9)
+    True
+    """
+    if mesh.n_vertices == 0:
+        raise ValueError("the mesh has no vertices")
+    c = curvatures(f, torch.as_tensor(np.asarray(mesh.vertices, dtype=np.float64)), chunk=chunk)
+    for key, field in CURVATURE_FIELDS.items():
+        mesh.point_data[key] = getattr(c, field).cpu().numpy()
+    return mesh

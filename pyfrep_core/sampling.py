@@ -98,7 +98,7 @@ def sample_surface(
 
     Returns
     -------
-    (n, 3) float64 numpy array.
+    (n, 3) float64 numpy array; save it as XYZ or PLY with :func:`pyfrep_core.io.save_points`.
 
     Examples
     --------

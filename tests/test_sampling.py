@@ -127,3 +127,15 @@ def test_microstructure_cloud_is_on_its_surface_only_at_its_parameters():
     assert np.abs(microstructure(pts, **p)).max() < 1e-9
     other = dict(p, scale1=7.5)
     assert np.sqrt(np.mean(microstructure(pts, **other) ** 2)) > 1e-2
+
+
+@pytest.mark.parametrize("suffix", [".xyz", ".ply"])
+def test_cloud_saved_and_loaded_exactly(tmp_path, suffix):
+    from pyfrep_core.io import load_points, save_points
+
+    p = dict(scale1=7.0, scale2=4.0, freq1=0.8, freq2=0.6)
+    pts = sample_surface(microstructure, 500, params=p, noise=0.0, seed=4, resolution=64)
+    save_points(tmp_path / f"cloud{suffix}", pts)
+    cloud = load_points(tmp_path / f"cloud{suffix}")
+    np.testing.assert_array_equal(cloud.points, pts)  # XYZ keeps every digit, PLY stores float64
+    assert np.abs(microstructure(cloud.points, **p)).max() < 1e-9

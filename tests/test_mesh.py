@@ -1,0 +1,254 @@
+"""polygonize and Mesh: the Fig. 1 part against its exact volume, spheres against closed forms, bad input."""
+
+import math
+import re
+import tracemalloc
+import warnings
+
+import numpy as np
+import pytest
+import torch
+
+from pyfrep_core import Mesh, Param, model, polygonize, sphere
+from pyfrep_core.mesh import GridTooLargeError, evaluate_grid, grid_axes, grid_memory
+from pyfrep_core.models import fig1_part
+
+BOX = ((-1.1,) * 3, (1.1,) * 3)
+# Exact volume of the Fig. 1 part (sphere r = 1 cut by the cube [-0.75, 0.75]^3, three r = 0.5
+# cylinders removed): the z-extent over (x, y) is 2 max(0, min(0.75, sqrt(1 - x^2 - y^2))
+# - sqrt(max(0, 0.25 - min(x^2, y^2)))), integrated with scipy.integrate.dblquad.
+FIG1_VOLUME = 0.9887887
+
+
+def edge_counts(faces):
+    edges = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    return np.unique(edges, axis=0, return_counts=True)[1]
+
+
+def face_normals(mesh):
+    a, b, c = (mesh.vertices[mesh.faces[:, i]] for i in range(3))
+    n = np.cross(b - a, c - a)
+    return n / np.linalg.norm(n, axis=1, keepdims=True)
+
+
+@pytest.fixture(scope="module")
+def fig1_128():
+    return polygonize(fig1_part, BOX, 128)
+
+
+def test_fig1_part_at_128_is_watertight_on_the_surface_and_has_the_exact_volume(fig1_128):
+    m = fig1_128
+    assert m.vertices.dtype == np.float64 and m.faces.dtype == np.int64
+    assert m.n_faces > 50_000
+    assert (edge_counts(m.faces) == 2).all()  # closed 2-manifold: every edge in exactly two faces
+    assert np.array_equal(np.unique(m.faces), np.arange(m.n_vertices))  # no stray vertices
+    assert (m.vertices >= -1.1).all() and (m.vertices <= 1.1).all()
+    f = fig1_part(torch.as_tensor(m.vertices, dtype=torch.float64))
+    assert float(f.abs().max()) < 1e-9
+    assert abs(m.volume() - FIG1_VOLUME) < 3e-3
+
+
+def test_fig1_part_normals_point_outward(fig1_128):
+    m = fig1_128
+    assert m.volume() > 0  # counter-clockwise seen from outside
+    np.testing.assert_allclose(np.linalg.norm(m.normals, axis=1), 1.0, atol=1e-12)
+    vertex_normal = m.normals[m.faces].mean(axis=1)
+    agree = np.einsum("ij,ij->i", face_normals(m), vertex_normal / np.linalg.norm(vertex_normal, axis=1)[:, None])
+    assert (agree > 0).all()
+    assert (agree > 0.9).mean() > 0.99  # only triangles across the part's sharp edges differ more
+    # outward: a small step along the normal leaves the solid, one against it enters
+    x = torch.as_tensor(m.vertices)
+    n = torch.as_tensor(m.normals)
+    assert float((fig1_part(x + 1e-4 * n) < 0).double().mean()) > 0.99
+    assert float((fig1_part(x - 1e-4 * n) > 0).double().mean()) > 0.99
+
+
+def test_fig1_part_at_256_volume_within_5e4():
+    m = polygonize(fig1_part, BOX, 256)
+    assert (edge_counts(m.faces) == 2).all()
+    assert abs(m.volume() - FIG1_VOLUME) < 5e-4
+    assert float(fig1_part(torch.as_tensor(m.vertices)).abs().max()) < 1e-9
+
+
+def test_model_uses_its_default_bounds_and_parameters():
+    m = polygonize(fig1_part, resolution=48)
+    explicit = polygonize(lambda x: fig1_part(x), BOX, 48)
+    np.testing.assert_array_equal(m.faces, explicit.faces)
+    np.testing.assert_allclose(m.vertices, explicit.vertices, atol=1e-12)
+    thin = polygonize(lambda x: fig1_part(x, r=0.35), BOX, 48)
+    assert thin.volume() > m.volume() + 0.1  # narrower holes, more material
+
+
+@pytest.mark.parametrize("n", [24, 48, 96])
+def test_sphere_volume_and_area_converge_at_second_order(n):
+    r = 0.9
+    m = polygonize(lambda x: sphere(x, center=(0.05, -0.02, 0.01), r=r), ((-1.0,) * 3, (1.0,) * 3), n)
+    h = 2.0 / (n - 1)
+    volume_err = m.volume() / (4 / 3 * math.pi * r**3) - 1
+    area_err = m.area() / (4 * math.pi * r**2) - 1
+    # chords of a sphere of radius r: relative deficits of about h^2 / (2 r^2) and h^2 / (4 r^2)
+    assert -0.8 * h**2 / r**2 < volume_err < 0
+    assert -0.4 * h**2 / r**2 < area_err < 0
+    radius = np.linalg.norm(m.vertices - np.array([0.05, -0.02, 0.01]), axis=1)
+    np.testing.assert_allclose(radius, r, atol=1e-12)
+    np.testing.assert_allclose(m.normals, (m.vertices - [0.05, -0.02, 0.01]) / r, atol=1e-9)
+
+
+def test_anisotropic_grid_and_box():
+    f = lambda x: sphere(x, center=(0.3, 0.0, 0.0), r=0.5)  # noqa: E731
+    m = polygonize(f, ((-0.3, -0.6, -0.7), (0.9, 0.6, 0.7)), (40, 30, 50))
+    assert (edge_counts(m.faces) == 2).all()
+    assert abs(m.volume() / (4 / 3 * math.pi * 0.125) - 1) < 0.01
+    np.testing.assert_allclose(np.linalg.norm(m.vertices - [0.3, 0, 0], axis=1), 0.5, atol=1e-12)
+
+
+def test_surface_touching_the_bounds_gives_an_open_mesh_inside_them():
+    m = polygonize(lambda x: sphere(x, r=1.0), ((0.0, -1.2, -1.2), (1.2, 1.2, 1.2)), 40)
+    assert (m.vertices[:, 0] >= 0).all()
+    assert (edge_counts(m.faces) <= 2).all() and (edge_counts(m.faces) == 1).any()
+
+
+def test_project_false_keeps_marching_cubes_vertices():
+    f = lambda x: sphere(x, r=1.0)  # noqa: E731
+    raw = polygonize(f, ((-1.2,) * 3, (1.2,) * 3), 32, project=False)
+    projected = polygonize(f, ((-1.2,) * 3, (1.2,) * 3), 32)
+    np.testing.assert_array_equal(raw.faces, projected.faces)
+    off = np.abs(np.linalg.norm(raw.vertices, axis=1) - 1)
+    assert 1e-6 < off.max() < 0.01  # linear interpolation of r^2 - |x|^2 on the grid
+    np.testing.assert_allclose(np.linalg.norm(raw.normals, axis=1), 1.0)
+
+
+def test_float64_grid_gives_the_same_mesh():
+    f32 = polygonize(fig1_part, BOX, 40)
+    f64 = polygonize(fig1_part, BOX, 40, dtype=torch.float64)
+    np.testing.assert_array_equal(f32.faces, f64.faces)
+    np.testing.assert_allclose(f32.vertices, f64.vertices, atol=1e-10)
+
+
+def test_evaluate_grid_order_end_points_and_chunks():
+    f = lambda x: x[..., 0] + 10 * x[..., 1] + 100 * x[..., 2]  # noqa: E731
+    bounds = ((-1.0, 0.0, 2.0), (1.0, 3.0, 4.0))
+    axes = grid_axes(bounds, (5, 4, 3))
+    assert [a[0] for a in axes] == [-1.0, 0.0, 2.0] and [a[-1] for a in axes] == [1.0, 3.0, 4.0]
+    expected = axes[0][:, None, None] + 10 * axes[1][None, :, None] + 100 * axes[2][None, None, :]
+    for max_points in (1, 5, 7, 12, 1000):  # both chunkings: rows of z, and whole x-slices
+        v = evaluate_grid(f, bounds, (5, 4, 3), dtype=torch.float64, max_points=max_points)
+        assert v.shape == (5, 4, 3) and v.dtype == np.float64
+        np.testing.assert_allclose(v, expected, rtol=0, atol=1e-12)
+
+
+def test_no_surface_gives_an_empty_mesh_and_a_warning():
+    with pytest.warns(RuntimeWarning, match="does not change sign"):
+        m = polygonize(lambda x: sphere(x, center=(5.0, 0.0, 0.0), r=1.0), BOX, 16)
+    assert m.is_empty() and m.vertices.shape == (0, 3) and m.volume() == 0.0 and m.area() == 0.0
+    with pytest.warns(RuntimeWarning, match="does not change sign"):
+        assert polygonize(lambda x: sphere(x, r=5.0), BOX, 16).is_empty()  # all inside
+
+
+def test_unconverged_vertices_stay_at_marching_cubes_and_are_counted():
+    # a triple root: grad f = 0 on the surface, so Newton and the edge search cannot certify it
+    f = lambda x: sphere(x, r=1.0) ** 3  # noqa: E731
+    bounds = ((-1.2,) * 3, (1.2,) * 3)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        m = polygonize(f, bounds, 20)
+    messages = [str(w.message) for w in caught if "could not be moved" in str(w.message)]
+    assert len(messages) == 1
+    failed = int(re.search(r"(\d+) of (\d+) vertices", messages[0]).group(1))
+    assert 0 < failed <= m.n_vertices
+    raw = polygonize(f, bounds, 20, project=False)
+    assert int((m.vertices == raw.vertices).all(axis=1).sum()) >= failed
+    assert np.isfinite(m.normals).all()
+
+
+@pytest.mark.parametrize("resolution", [1, 0, -5, 2.5, "64", True, None, (32, 32), float("nan")])
+def test_bad_resolution(resolution):
+    with pytest.raises(ValueError, match="resolution"):
+        polygonize(fig1_part, BOX, resolution)
+
+
+@pytest.mark.parametrize(
+    "bounds, match",
+    [
+        (((1.0, -1, -1), (-1.0, 1, 1)), "inverted"),
+        (((0.0, 0, 0), (0.0, 1, 1)), "inverted"),
+        (((-1, -1), (1, 1)), "3 lower"),
+        ((-1, 1), "bounds"),
+        (((-1, -1, float("nan")), (1, 1, 1)), "finite"),
+    ],
+)
+def test_bad_bounds(bounds, match):
+    with pytest.raises(ValueError, match=match):
+        polygonize(lambda x: sphere(x, r=0.5), bounds, 16)
+
+
+def test_nan_from_f_names_the_point():
+    f = lambda x: torch.sqrt(x[..., 0] + 0.5) - 0.5  # NaN for x < -0.5  # noqa: E731
+    with pytest.raises(ValueError, match=r"not finite at x = \(-1\.0"):
+        polygonize(f, ((-1.0,) * 3, (1.0,) * 3), 9)
+    with pytest.raises(ValueError, match="not finite"):
+        evaluate_grid(lambda x: 1.0 / x[..., 0], ((-1.0,) * 3, (1.0,) * 3), 3)  # inf at x = 0
+
+
+def test_f_with_wrong_output_shape():
+    with pytest.raises(ValueError, match="must map points"):
+        polygonize(lambda x: x, BOX, 8)
+    with pytest.raises(ValueError, match="must map points"):
+        polygonize(lambda x: fig1_part(x, r=torch.tensor([0.3, 0.4])), BOX, 8)  # a batch of 2 parameter sets
+
+
+def test_two_d_model_and_missing_bounds_are_refused():
+    @model(bounds=((-1, -1), (1, 1)), dim=2, r=Param(0.5, 0.1, 0.9))
+    def disc(x, r):
+        return r * r - (x * x).sum(-1)
+
+    with pytest.raises(ValueError, match="dim=2"):
+        polygonize(disc)
+    with pytest.raises(ValueError, match="bounds must be given"):
+        polygonize(lambda x: sphere(x, r=0.5))
+
+
+def test_resolution_too_large_says_how_much_memory_before_allocating():
+    tracemalloc.start()
+    try:
+        with pytest.raises(ValueError, match=r"resolution 100000 needs about [\d.e+]+ GiB") as info:
+            polygonize(fig1_part, BOX, 100_000)
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert isinstance(info.value, MemoryError) and isinstance(info.value, GridTooLargeError)
+    assert peak < 50 << 20  # nothing grid-sized was allocated
+    need = float(re.search(r"about ([\d.e+]+) GiB", str(info.value)).group(1))
+    assert need == pytest.approx(4 * 100_000**3 * 1.25 / 2**30, rel=1e-2)
+    with pytest.raises(MemoryError, match="GiB"):
+        evaluate_grid(fig1_part, BOX, (100_000, 100_000, 10))
+    assert grid_memory(512) < 1 << 30  # 512^3 float32 fits in well under a GiB
+
+
+def test_mesh_validates_its_arrays():
+    v = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]])
+    with pytest.raises(ValueError, match="vertices must have shape"):
+        Mesh(v[:, :2], np.array([[0, 1, 2]]))
+    with pytest.raises(ValueError, match="faces must have shape"):
+        Mesh(v, np.array([0, 1, 2]))
+    with pytest.raises(ValueError, match="faces index vertices"):
+        Mesh(v, np.array([[0, 1, 3]]))
+    with pytest.raises(ValueError, match="integer"):
+        Mesh(v, np.array([[0, 1, 1.5]]))
+    with pytest.raises(ValueError, match="normals must have shape"):
+        Mesh(v, np.array([[0, 1, 2]]), normals=np.zeros((2, 3)))
+    with pytest.raises(ValueError, match="point_data"):
+        Mesh(v, np.array([[0, 1, 2]]), point_data={"k": np.zeros(4)})
+    with pytest.raises(ValueError, match="NaN"):
+        Mesh(v * np.nan, np.array([[0, 1, 2]]))
+    tri = Mesh(v.tolist(), [[0, 1, 2]])
+    assert tri.faces.dtype == np.int64 and tri.area() == pytest.approx(0.5)
+
+
+def test_to_pyvista_carries_normals_and_point_data(fig1_128):
+    m = Mesh(fig1_128.vertices, fig1_128.faces, fig1_128.normals, {"height": fig1_128.vertices[:, 2]})
+    poly = m.to_pyvista()
+    assert poly.n_points == m.n_vertices and poly.n_cells == m.n_faces
+    np.testing.assert_array_equal(poly.point_data["height"], m.vertices[:, 2])
+    np.testing.assert_array_equal(poly.point_data["Normals"], m.normals)
+    assert poly.volume == pytest.approx(m.volume(), rel=1e-9)

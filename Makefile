@@ -36,9 +36,11 @@ test: setup browser lint
 		$(VENV)/bin/pytest -q -p no:doctest --nbval-lax --nbval-current-env notebooks/; fi
 
 # The workbench in a browser: Voila serves notebooks/workbench.ipynb; idle kernels are culled.
+# Template "pyfrep" (workbench/jupyter): Voila's lab page without its CDN stylesheets (offline).
 run: setup
 	@echo "workbench: http://localhost:$(PORT)/"
-	$(VENV)/bin/voila notebooks/workbench.ipynb --no-browser --port=$(PORT) \
+	JUPYTER_PATH=$(CURDIR)/workbench/jupyter $(VENV)/bin/voila notebooks/workbench.ipynb --no-browser \
+		--port=$(PORT) --template=pyfrep \
 		--MappingKernelManager.cull_idle_timeout=120 --MappingKernelManager.cull_interval=30
 
 bench: setup

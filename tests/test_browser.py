@@ -58,10 +58,12 @@ def voila_url():
             "notebooks/workbench.ipynb",
             "--no-browser",
             f"--port={port}",
+            "--template=pyfrep",  # workbench/jupyter: the lab page without CDN stylesheets
             "--MappingKernelManager.cull_idle_timeout=120",
             "--MappingKernelManager.cull_interval=30",
         ],
         cwd=ROOT,
+        env={**os.environ, "JUPYTER_PATH": str(ROOT / "workbench" / "jupyter")},
         stdout=log,
         stderr=subprocess.STDOUT,
         start_new_session=True,
@@ -88,8 +90,13 @@ def voila_url():
 
 
 @pytest.fixture(scope="module")
-def page(voila_url):
-    external = []
+def external():
+    """URLs the page requested from anywhere but this machine."""
+    return []
+
+
+@pytest.fixture(scope="module")
+def page(voila_url, external):
     with playwright_api.sync_playwright() as p:
         browser = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
         try:
@@ -184,3 +191,9 @@ def test_fit_runs_chart_grows_and_loss_goes_down(page):
     first = float(re.search(r"first ([0-9.e+-]+)", progress).group(1))
     final = float(re.search(r"loss ([0-9.e+-]+), stages", page.locator(".fit-done").inner_text()).group(1))
     assert final < first
+
+
+def test_nothing_is_fetched_from_the_internet(page, external):
+    """Last test: every request of the page (shape tab, fit, trame views) went to this machine."""
+    assert page.locator(".fit-done").count() == 1
+    assert external == []

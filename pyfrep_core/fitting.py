@@ -339,16 +339,16 @@ def _polish(prob: _Problem, x: torch.Tensor, u0: torch.Tensor, cfg: dict, report
     p0 = np.clip(prob.to_params(u0.to(torch.float64)).cpu().numpy(), prob.lower, prob.upper)
     last: dict[str, np.ndarray] = {}
 
-    with report(cfg["polish_iters"], "polish") as progress:
+    with report(cfg["polish_iters"], "polish", every=1) as progress:
 
         def fun(p: np.ndarray) -> np.ndarray:
             r = _residuals(prob, x64, torch.as_tensor(p, device=x.device)).cpu().numpy()
             losses.append(float(np.mean(r * r)))
-            if not losses[-1] <= min(losses):  # keep the best point seen for an early stop
-                return r
-            last["p"], last["r"] = p.copy(), r
-            step = len(losses) - 1
-            if step < cfg["polish_iters"] and progress.update(step, losses[-1], lambda: prob.as_dict(p)):
+            if losses[-1] <= min(losses):  # the best point so far: what an early stop returns
+                last["p"], last["r"] = p.copy(), r
+            best = last["p"]
+            # every evaluation is reported (there are few), with the best loss and parameters so far
+            if progress.update(len(losses) - 1, min(losses), lambda: prob.as_dict(best)):
                 raise _StopRequestedError
             return r
 
@@ -487,7 +487,7 @@ def fit(
     prob = _Problem(model, x, {k: float(v) for k, v in fixed.items()}, box)
     gen = torch.Generator().manual_seed(seed if seed is not None else int(torch.randint(2**62, ()).item()))
 
-    def report(total: int, stage: str) -> Progress:
+    def report(total: int, stage: str, every: int = every) -> Progress:
         return _LazyProgress(total, stage, callback, every, stop, progress)
 
     threads = torch.get_num_threads()

@@ -33,7 +33,7 @@ lint: setup
 test: setup browser lint
 	$(VENV)/bin/pytest -q tests pyfrep_core workbench
 	@if ls notebooks/*.ipynb >/dev/null 2>&1; then \
-		$(VENV)/bin/pytest -q -p no:doctest --nbval-lax --nbval-current-env notebooks/; fi
+		$(VENV)/bin/pytest -q -o addopts=-ra --nbval-lax --nbval-current-env notebooks/; fi
 
 # The workbench in a browser: Voila serves notebooks/workbench.ipynb; idle kernels are culled.
 # Template "pyfrep" (workbench/jupyter): Voila's lab page without its CDN stylesheets (offline).

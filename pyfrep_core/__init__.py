@@ -38,6 +38,7 @@ from .primitives import *  # noqa: F403
 from .primitives import __all__ as _primitives_all
 from .progress import Event, Progress
 from .sampling import sample_surface
+from .sensitivity import normal_velocity
 from .transforms import *  # noqa: F403
 from .transforms import __all__ as _transforms_all
 
@@ -54,6 +55,7 @@ __all__ = [
     "load_mesh",
     "load_points",
     "model",
+    "normal_velocity",
     "polygonize",
     "project_to_surface",
     "sample_surface",

@@ -332,3 +332,13 @@ def test_fitting_panel_loads_a_cloud_from_xyz(tmp_path):
         assert "FileNotFoundError" in p.status.value and len(p.points) == 150
     finally:
         p.view.close()
+
+
+def test_param_derivative_agrees_with_diff_param_grad():
+    from pyfrep_core.diff import param_grad
+    from pyfrep_core.sensitivity import param_derivative
+
+    rng = np.random.default_rng(1)
+    x = rng.uniform(-1, 1, size=(200, 3))
+    ours = param_derivative(fig1_part, x, "r", {"r": 0.42})
+    np.testing.assert_allclose(ours, param_grad(fig1_part, x, {"r": 0.42})["r"], rtol=1e-12, atol=1e-12)

@@ -3,7 +3,9 @@
 Each is a :class:`pyfrep_core.model.Model` with named, bounded parameters and default bounds.
 """
 
+from ._ellipse import ellipse, ellipse_distance
 from ._fig1 import fig1_part
 from ._microstructure import microstructure
+from ._schwarz_d import schwarz_d
 
-__all__ = ["fig1_part", "microstructure"]
+__all__ = ["ellipse", "ellipse_distance", "fig1_part", "microstructure", "schwarz_d"]

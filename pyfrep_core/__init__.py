@@ -23,13 +23,15 @@ tensor([ True, False])
 from . import sdf
 from .convolution import *  # noqa: F403
 from .convolution import __all__ as _convolution_all
-from .diff import grad, project_to_surface, value_and_grad
+from .curvature import Curvatures, attach_curvatures, curvatures, gaussian_curvature, mean_curvature
+from .diff import div, grad, hessian, laplacian, p_laplacian, param_grad, project_to_surface, value_and_grad
 from .fitting import FitResult, fit
 from .io import load_mesh, load_points, save_mesh, save_points
 from .lattices import *  # noqa: F403
 from .lattices import __all__ as _lattices_all
 from .mesh import Mesh, polygonize
 from .model import Model, Param, model
+from .normalization import delta_1, normalized, omega_1, omega_k
 from .operations import *  # noqa: F403
 from .operations import __all__ as _operations_all
 from .periodic import *  # noqa: F403
@@ -44,18 +46,32 @@ from .transforms import __all__ as _transforms_all
 
 __version__ = "0.1.0"
 __all__ = [
+    "Curvatures",
     "Event",
     "FitResult",
     "Mesh",
     "Model",
     "Param",
     "Progress",
+    "attach_curvatures",
+    "curvatures",
+    "delta_1",
+    "div",
     "fit",
+    "gaussian_curvature",
     "grad",
+    "hessian",
+    "laplacian",
     "load_mesh",
     "load_points",
+    "mean_curvature",
     "model",
     "normal_velocity",
+    "normalized",
+    "omega_1",
+    "omega_k",
+    "p_laplacian",
+    "param_grad",
     "polygonize",
     "project_to_surface",
     "sample_surface",

@@ -96,8 +96,9 @@ class CurvaturePanel(widgets.VBox):
 
         self.model_choice.observe(lambda _: self.request(), names="value")
         self.resolution.observe(lambda _: self.request(), names="value")
-        self.quantity.observe(lambda _: self.draw(), names="value")
-        self.clip.observe(lambda _: self.draw(), names="value")
+        # renders belong on the main thread (JupyterLab may call back on a subshell thread)
+        self.quantity.observe(lambda _: self.main.call(self.draw), names="value")
+        self.clip.observe(lambda _: self.main.call(self.draw), names="value")
         controls = widgets.VBox([self.model_choice, self.resolution, self.quantity, self.clip, self.histogram])
         super().__init__([widgets.HBox([controls, self.view.widget]), self.status])
         self.request()

@@ -97,9 +97,10 @@ class FittingPanel(widgets.VBox):
         self.param_chart = LineChart("parameters (dashed: true values)", "step", "value", schedule=schedule)
         self.view = MeshView(backend=backend, size=size)
 
-        self.new_cloud.on_click(lambda _: self.make_cloud())
-        self.model_choice.observe(lambda _: self.make_cloud(), names="value")
-        self.upload.observe(lambda _: self._uploaded(), names="value")
+        # these render: on the main thread (JupyterLab may call back on a subshell thread)
+        self.new_cloud.on_click(lambda _: self.main.call(self.make_cloud))
+        self.model_choice.observe(lambda _: self.main.call(self.make_cloud), names="value")
+        self.upload.observe(lambda _: self.main.call(self._uploaded), names="value")
         self.run_button.on_click(lambda _: self.start())
         self.stop_button.on_click(lambda _: self.stop())
 

@@ -146,10 +146,10 @@ class ShapePanel(widgets.VBox):
 
         self._make_sliders(model)
         self.choice.observe(lambda change: self.set_model(self.choices[change["new"]]), names="value")
+        self.export_button.on_click(lambda _: self.export())
         self.resolution.observe(lambda _: self.request(), names="value")
         self.bounds.observe(self._bounds_changed, names="value")
         self.colouring.observe(lambda _: self.request(), names="value")
-        self.export_button.on_click(lambda _: self.export())
         self.reset_button.on_click(lambda _: self.reset())
 
         legend = widgets.HTML(
@@ -232,7 +232,7 @@ class ShapePanel(widgets.VBox):
             "reset_camera": reset_camera,
         }
         if not self.threaded:
-            self._show(job, *self._run_inline(job))
+            self.main.call(lambda: self._show(job, *self._run_inline(job)))
             return
         preview = self.preview_resolution
         if full or preview is None or preview >= res:

@@ -99,6 +99,29 @@ def test_noisy_fit_within_tolerance_derived_from_the_noise():
         assert abs(corrected - truth[name]) < 4 * se[name] * math.sqrt(1 + 1 / k_boot), (name, corrected, se[name])
 
 
+def test_noisy_microstructure_bias_corrected_within_bootstrap_spread(cloud):
+    """The microstructure with noise of 0.1 % of its box (sigma = 0.021; at the issue's 1 % the noise,
+    0.21, is wider than the outer rods, ~0.18, and no parameter is identifiable: measured, see the
+    report).  The algebraic fit is biased (freq1 by ~10 %); a parametric bootstrap at the fitted
+    parameters estimates the bias and the estimator's spread, which set the tolerance."""
+    sigma, k_boot = 0.001 * 21.0, 16  # the box is 21 wide
+    noisy = cloud + np.random.default_rng(5).normal(0, sigma, cloud.shape)
+    res = fit(microstructure, noisy, seed=0, progress=False, **PROTOCOL)
+    clean_hat = sample_surface(microstructure, len(cloud), params=res.params, seed=1, resolution=128)
+    rng = np.random.default_rng(2)
+    boot = []
+    for _ in range(k_boot):
+        noisy_hat = clean_hat + rng.normal(0, sigma, clean_hat.shape)
+        refit = fit(microstructure, noisy_hat, stages=("polish",), init=res.params, progress=False)
+        boot.append([refit.params[k] for k in TRUTH])
+    boot = np.array(boot)
+    for j, name in enumerate(TRUTH):
+        bias = boot[:, j].mean() - res.params[name]
+        spread = max(boot[:, j].std(ddof=1), res.standard_errors[name])
+        corrected = res.params[name] - bias
+        assert abs(corrected - TRUTH[name]) < 4 * spread * math.sqrt(1 + 1 / k_boot), (name, corrected, spread)
+
+
 def test_fixed_parameters_stay_fixed(cloud):
     res = fit(microstructure, cloud[:8000], fixed={"freq1": 0.7, "freq2": 0.9}, seed=3, progress=False, **PROTOCOL)
     assert res.params["freq1"] == 0.7 and res.params["freq2"] == 0.9

@@ -482,7 +482,8 @@ def param_grad(
 
     if not names:
         return {}
-    parts = chunk_fn(t) if create_graph else _map_chunks(chunk_fn, t, chunk)
+    # sequential chunks: torch.func's forward-AD levels are not thread-safe
+    parts = chunk_fn(t) if create_graph else _map_chunks(chunk_fn, t, chunk, parallel=False)
     return _out(dict(zip(names, parts)), was_numpy, batch)
 
 

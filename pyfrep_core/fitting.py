@@ -86,8 +86,8 @@ class _StopRequestedError(Exception):
 class _Problem:
     """The free parameters of a model, their box, and batched evaluations of f on points."""
 
-    def __init__(self, model: Model, points: torch.Tensor, fixed: dict[str, float], box: dict[str, tuple]):
-        self.model, self.points, self.fixed = model, points, fixed
+    def __init__(self, model: Model, fixed: dict[str, float], box: dict[str, tuple]):
+        self.model, self.fixed = model, fixed
         self.free = [k for k in model.names if k not in fixed]
         self.lower = np.array([box[k][0] for k in self.free])
         self.upper = np.array([box[k][1] for k in self.free])
@@ -484,7 +484,7 @@ def fit(
                mutation=mutation, subsample=subsample, final_subsample=final_subsample, finalists=finalists,
                epochs=epochs, batch_size=batch_size, lr=lr, polish_iters=polish_iters, xtol=xtol,
                dtype=dtype)  # fmt: skip
-    prob = _Problem(model, x, {k: float(v) for k, v in fixed.items()}, box)
+    prob = _Problem(model, {k: float(v) for k, v in fixed.items()}, box)
     gen = torch.Generator().manual_seed(seed if seed is not None else int(torch.randint(2**62, ()).item()))
 
     def report(total: int, stage: str, every: int = every) -> Progress:

@@ -179,14 +179,14 @@ def test_jacobian_one_pass_matches_forward_mode_and_falls_back():
     rng = np.random.default_rng(0)
     x = torch.tensor(rng.uniform(-9, 9, (300, 3)))
     p = torch.tensor(list(TRUTH.values()), dtype=torch.float64)
-    prob = _Problem(microstructure, x, {}, {k: (q.lower, q.upper) for k, q in microstructure.params.items()})
+    prob = _Problem(microstructure, {}, {k: (q.lower, q.upper) for k, q in microstructure.params.items()})
     fast = _jacobian_per_point(prob, x, p)
     torch.testing.assert_close(fast, _jacobian_forward(prob, x, p), rtol=1e-10, atol=1e-12)
     state = {}
     _jacobian(prob, x, p, state)
     assert state == {"per_point": True}
     # a parameter inside a center vector does not broadcast per point: the forward mode is used
-    prob = _Problem(egg, x / 8, {}, {k: (q.lower, q.upper) for k, q in egg.params.items()})
+    prob = _Problem(egg, {}, {k: (q.lower, q.upper) for k, q in egg.params.items()})
     q = torch.tensor([1.1, 0.75, 0.55, 0.12], dtype=torch.float64)
     state = {}
     jac = _jacobian(prob, x / 8, q, state)

@@ -71,7 +71,8 @@ def test_sensitivity_to_cylinder_radius_lives_on_the_cylinder_walls(panel):
     np.testing.assert_allclose(v[clear], 1.0, atol=1e-9)
     # the view is coloured by it on a map centred on zero
     lo, hi = panel.view.actor.mapper.scalar_range
-    assert lo == pytest.approx(-hi) and hi == pytest.approx(np.abs(v).max())
+    assert lo == pytest.approx(-hi) and hi == pytest.approx(np.percentile(np.abs(v), 99))
+    assert hi >= 1.0 - 1e-9  # the walls' unit speed is inside the colour range
 
 
 def test_normal_velocity_of_a_growing_sphere_is_minus_one_and_checks_names():

@@ -28,7 +28,7 @@ from pyfrep_core.sensitivity import normal_velocity
 from ._threads import LatestWorker, MainThread
 from .view import MeshView
 
-__all__ = ["ShapePanel", "paper_shape_panel", "param_slider", "shape_panel"]
+__all__ = ["ShapePanel", "paper_shape_panel", "param_slider", "shape_panel", "symmetric_range"]
 
 RESOLUTIONS = (32, 48, 64, 96, 128, 160, 192, 256)
 COLOURINGS = ("sensitivity", "plain")
@@ -50,6 +50,17 @@ def param_slider(name: str, param: Any, value: float | None = None) -> widgets.F
         style={"description_width": "110px"},
         layout=widgets.Layout(width="340px"),
     )
+
+
+def symmetric_range(values: np.ndarray, percentile: float = 99.0) -> tuple[float, float]:
+    """(-top, top) with top the ``percentile`` of |values| (vertices on creases, where the
+    sensitivity is a sub-gradient, do not set the scale), the maximum when that is 0; (-1, 1) if all are 0."""
+    size = np.abs(values[np.isfinite(values)])
+    top = float(np.percentile(size, percentile)) if size.size else 0.0
+    if top <= 0 and size.size:
+        top = float(size.max())
+    top = top if top > 0 else 1.0
+    return (-top, top)
 
 
 def _format_bounds(bounds: Any) -> str:
@@ -275,9 +286,7 @@ class ShapePanel(widgets.VBox):
         title = ""
         clim = None
         if scalars is not None:
-            top = float(np.max(np.abs(scalars))) if scalars.size else 0.0
-            top = top if top > 0 else 1.0
-            clim = (-top, top)  # diverging map centred on 0
+            clim = symmetric_range(scalars)  # diverging map centred on 0
             title = f"v ({job['moved']})"
         self.view.update(
             mesh, scalars=scalars, title=title, cmap="coolwarm", clim=clim, reset_camera=job["reset_camera"]

@@ -118,6 +118,8 @@ class MeshView:
         """Replace the surface with ``mesh`` (a pyfrep_core Mesh or a PolyData), coloured by ``scalars`` (V,)."""
         new = mesh if isinstance(mesh, pv.PolyData) else mesh.to_pyvista()
         new = new.copy(deep=False)
+        if "Normals" in new.point_data:  # grad f normals from the core: VTK shades with them, none recomputed
+            new.point_data.active_normals_name = "Normals"
         if scalars is not None:
             new.point_data["values"] = np.asarray(scalars, dtype=np.float64)
             new.set_active_scalars("values")
@@ -129,7 +131,7 @@ class MeshView:
                 scalars="values" if scalars is not None else None,
                 color=self.color,
                 cmap=cmap,
-                smooth_shading=True,
+                smooth_shading=False,  # smooth anyway: the point normals above (pyvista's would re-run a filter)
                 show_scalar_bar=False,
                 name="surface",
             )

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import math
 import time
+import warnings
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -299,13 +300,15 @@ def _jacobian_forward(prob: _Problem, x: torch.Tensor, p: torch.Tensor) -> torch
     from torch.autograd import forward_ad
 
     cols = []
-    for j in range(p.shape[0]):
-        with forward_ad.dual_level():
-            tangent = torch.zeros_like(p)
-            tangent[j] = 1.0
-            out = prob.f(x, forward_ad.make_dual(p, tangent))
-            col = forward_ad.unpack_dual(out).tangent
-        cols.append(torch.zeros_like(out) if col is None else col)
+    with warnings.catch_warnings():  # torch's first forward-mode pass scripts decompositions (deprecated API)
+        warnings.simplefilter("ignore", DeprecationWarning)
+        for j in range(p.shape[0]):
+            with forward_ad.dual_level():
+                tangent = torch.zeros_like(p)
+                tangent[j] = 1.0
+                out = prob.f(x, forward_ad.make_dual(p, tangent))
+                col = forward_ad.unpack_dual(out).tangent
+            cols.append(torch.zeros_like(out) if col is None else col)
     return torch.stack(cols, dim=1)
 
 

@@ -11,12 +11,13 @@ solid (material is removed), v < 0 where the solid grows.  A drilled cylinder of
 (f = y^2 + z^2 - r^2 near its wall) has v = -(-2r) / (2r) = 1 on its wall: the hole widens
 at unit speed.
 
-df/dp is taken per point in one forward-mode pass (``torch.autograd.forward_ad``), grad f
-in one reverse pass (:func:`pyfrep_core.diff.value_and_grad`).
+df/dp is taken per point in one reverse pass with one copy of the parameter per point (see
+``_df_dp``), grad f in another (:func:`pyfrep_core.diff.value_and_grad`).
 """
 
 from __future__ import annotations
 
+import threading
 from typing import Any
 
 import torch
@@ -123,9 +124,37 @@ def _params(model: Model, name: str, params: dict[str, Any] | None) -> dict[str,
 
 
 def _df_dp(model: Model, x: torch.Tensor, name: str, values: dict[str, Any]) -> torch.Tensor:
+    """Per-point df/dp.
+
+    Reverse mode with one copy of the parameter per point: f_i depends on p_i only, so the
+    gradient of sum_i f(x_i; p_i) w.r.t. (p_1..p_N) is df/dp at every point, in one backward
+    pass.  This needs the model's elementwise broadcasting (the contract: a parameter tensor
+    broadcasts against the points); a model that does not broadcast falls back to forward mode.
+    Reverse mode is preferred because forward-mode levels are process-global in torch: two
+    threads in forward mode at once (a slider's remesh beside a fit's polish) would collide.
+    """
+    n = x.shape[0]
+    p = torch.full((n,), float(values[name]), dtype=x.dtype, device=x.device, requires_grad=True)
+    try:
+        with torch.enable_grad():
+            f = model.fn(x, **{**values, name: p})
+        if isinstance(f, torch.Tensor) and f.shape == (n,) and f.requires_grad:
+            (g,) = torch.autograd.grad(f.sum(), p, allow_unused=True)
+            return torch.zeros_like(p).detach() if g is None else g.detach()
+        if isinstance(f, torch.Tensor) and f.shape == (n,):
+            return torch.zeros(n, dtype=x.dtype, device=x.device)  # f does not depend on p
+    except (RuntimeError, ValueError, TypeError):
+        pass
+    return _df_dp_forward(model, x, name, values)
+
+
+_FORWARD_AD = threading.Lock()
+
+
+def _df_dp_forward(model: Model, x: torch.Tensor, name: str, values: dict[str, Any]) -> torch.Tensor:
     """Per-point df/dp by forward-mode AD: one pass, tangent 1 on the parameter."""
     p = torch.as_tensor(values[name], dtype=x.dtype, device=x.device)
-    with torch.no_grad(), fwad.dual_level():
+    with _FORWARD_AD, torch.no_grad(), fwad.dual_level():
         dual = fwad.make_dual(p, torch.ones_like(p))
         f = model(x, **{**values, name: dual})
         tangent = fwad.unpack_dual(f).tangent

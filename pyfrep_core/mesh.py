@@ -437,13 +437,11 @@ def _project_vertices(
         # |f| / |grad f| (|grad f| at least the median, so that f = 0 where grad f vanishes passes)
         length = np.linalg.norm(gradient[done], axis=1)
         distance = np.abs(value) / np.maximum(length, np.median(length))
-        wrong = np.flatnonzero(done)[~(distance <= 1e3 * tol)]
-        done[wrong] = False
-        verts[wrong] = mc_verts[wrong]
+        done[np.flatnonzero(done)[~(distance <= 1e3 * tol)]] = False
     rest = np.flatnonzero(~done)
     n_failed = 0
     if len(rest):
-        # vertices on a grid node (a value exactly 0) or whose edge root failed: Newton along grad f
+        # vertices on a grid node, slow on their edge, or failing the check: Newton along grad f
         cell = float(np.linalg.norm(spacing))
         start = torch.as_tensor(verts[rest], dtype=torch.float64, device=device)
         proj = project_to_surface(f, start, tol=tol, max_step=cell, max_distance=cell, warn=False)
@@ -453,7 +451,8 @@ def _project_vertices(
         gradient[rest] = proj.gradient.cpu().numpy()
         failed = rest[~ok]
         n_failed = len(failed)
-        if n_failed:
+        if n_failed:  # back to where marching cubes put them
+            verts[failed] = mc_verts[failed]
             gradient[failed] = _value_and_grad(f, verts[failed], device)[1]
     return verts, gradient, n_failed
 
@@ -466,7 +465,7 @@ def _roots_on_edges(
     spacing: np.ndarray,
     step_tol: float,
     device: Any,
-    max_iter: int = 60,
+    max_iter: int = 10,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Move each marching-cubes vertex to the root of f on its grid edge (float64).
 
@@ -474,12 +473,14 @@ def _roots_on_edges(
     the two nodes have opposite signs, so the edge brackets a root.  On the edge parameter
     t in [0, 1], starting from marching cubes' linear interpolation, secant steps (order
     1.6) are taken while they stay inside the bracket, regula falsi on the bracket
-    otherwise, with bisection mixed in after 12 steps (Dekker's safeguards).  A vertex is
-    done when the next step is shorter than ``step_tol`` (length units; the step is then
-    taken) or f is exactly 0; the caller checks |f| / |grad f| at the result.
+    otherwise (Dekker's safeguard).  A vertex is done when the next step is shorter than
+    ``step_tol`` (length units; the step is then taken) or f is exactly 0; the caller
+    checks |f| / |grad f| at the result.  The few vertices still moving after ``max_iter``
+    steps (an edge that grazes the surface, where f has a near-double root, or one next to
+    a sharp feature) are left to Newton steps along grad f.
 
-    Returns the vertices (V, 3) in world coordinates (marching cubes' position where not
-    done) and the (V,) bool ``done``.
+    Returns the vertices (V, 3) in world coordinates (the current estimate, or marching
+    cubes' position, where not done) and the (V,) bool ``done``.
     """
     idx = index_verts.astype(np.float64)
     base = np.floor(idx)
@@ -505,24 +506,24 @@ def _roots_on_edges(
     c, slope = _cubic_root(values, i0, axis, f0, f1, frac[sel, axis])
     root = np.full(len(sel), np.nan)
     rows = np.arange(len(sel))
+    xs, es, hs = start, edge, h  # of the rows still moving
     a = fa = p = fp = None  # bracket end opposite to c, and the previous iterate
-    for step in range(max_iter):
-        fc = _f64(f, start[rows] + c[:, None] * edge[rows], device)
+    for _ in range(max_iter):
+        fc = _f64(f, xs + c[:, None] * es, device)
+        positive = fc > 0
         with np.errstate(divide="ignore", invalid="ignore"):
             if a is None:  # the bracket: the grid end whose value has the other sign
-                a = np.where(np.sign(fc) == np.sign(f0), 1.0, 0.0)
+                a = np.where(positive == (f0 > 0), 1.0, 0.0)
                 fa = np.where(a == 1.0, f1, f0)
                 nxt = c - fc / slope  # Newton with the cubic's slope
             else:  # the bracket becomes [previous iterate, c] when the sign changed
-                flip = np.sign(fc) != np.sign(fp)
+                flip = positive != (fp > 0)
                 a, fa = np.where(flip, p, a), np.where(flip, fp, fa)
                 nxt = c - fc * (c - p) / (fc - fp)  # secant
-            outside = ~((nxt > np.minimum(a, c)) & (nxt < np.maximum(a, c)))
+            outside = ~((nxt - a) * (nxt - c) < 0)
             if outside.any():
                 nxt[outside] = (c - fc * (c - a) / (fc - fa))[outside]  # regula falsi: inside
-        if step >= 12 and step % 2 == 0:
-            nxt = 0.5 * (a + c)
-        finished = (np.abs(nxt - c) * h[rows] <= step_tol) & np.isfinite(nxt)
+        finished = np.abs(nxt - c) * hs <= step_tol  # False for NaN
         exact = fc == 0
         root[rows[finished]] = nxt[finished]
         root[rows[exact]] = c[exact]
@@ -530,9 +531,11 @@ def _roots_on_edges(
         rows, p, fp, c, a, fa = rows[go], c[go], fc[go], nxt[go], a[go], fa[go]
         if len(rows) == 0:
             break
+        xs, es, hs = xs[go], es[go], hs[go]
     found = np.isfinite(root)
     verts[sel[found]] = start[found] + root[found, None] * edge[found]
     done[sel[found]] = True
+    verts[sel[rows]] = start[rows] + c[:, None] * edge[rows]  # not done yet: the best estimate
     return verts, done
 
 

@@ -1,0 +1,105 @@
+"""Meshing the Fig. 1 part over [-1.1, 1.1]^3 at 128^3 and 256^3: seconds, volume error, and sdfcad.
+
+``polygonize`` = float32 grid evaluation + scikit-image marching cubes + every vertex moved
+onto f = 0 in float64 + normals from grad f.  The peer is ``sdfcad`` (a PyPI fork of
+fogleman/sdf) on the same shape written with its own operations, with the same voxel size,
+in the same run: ``generate`` (threaded, sparse: it skips blocks that the distance bound
+proves empty) returning a triangle soup.  Issue targets: at or below fogleman/sdf (about
+1.5 s at 256^3 and 0.30 s at 128^3 on this kind of machine).
+
+Times are the median of a few runs after a warm-up; on a machine shared with other jobs they
+are noisy (torch's threads wait for each other when a core is taken).
+
+Run: ``.venv/bin/python benchmarks/mesh.py [runs]`` (PYFREP_QUICK=1: 3 runs).
+"""
+
+from __future__ import annotations
+
+import os
+import statistics
+import sys
+import time
+
+import numpy as np
+import torch
+from skimage.measure import marching_cubes
+
+from pyfrep_core import polygonize
+from pyfrep_core.mesh import _evaluate_grid, _project_vertices, grid_axes
+from pyfrep_core.models import fig1_part
+
+QUICK = os.environ.get("PYFREP_QUICK", "") not in ("", "0")
+BOUNDS = ((-1.1,) * 3, (1.1,) * 3)
+EXACT_VOLUME = 0.9887887  # see tests/test_mesh.py
+RESOLUTIONS = (128, 256)
+
+
+def median_seconds(fn, runs: int) -> tuple[float, object]:
+    out = fn()  # warm-up
+    times = []
+    for _ in range(runs):
+        t0 = time.perf_counter()
+        out = fn()
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times), out
+
+
+def sdfcad_shape():
+    try:
+        from sdf import X, Y, box, cylinder, sphere
+    except ImportError:
+        return None
+    # the Fig. 1 program: sphere & cube, minus three infinite cylinders (z, x, y)
+    return sphere(1) & box(1.5) - cylinder(0.5) - cylinder(0.5).orient(X) - cylinder(0.5).orient(Y)
+
+
+def sdfcad_mesh(shape, resolution: int) -> np.ndarray:
+    step = 2.2 / (resolution - 1)  # the same voxel size; sdf samples np.arange(lo, hi, step)
+    bounds = ((-1.1,) * 3, (1.1 + step / 2,) * 3)
+    return np.asarray(shape.generate(bounds=bounds, step=step, verbose=False)).reshape(-1, 3, 3)
+
+
+def soup_volume(triangles: np.ndarray) -> float:
+    a, b, c = triangles[:, 0], triangles[:, 1], triangles[:, 2]
+    return float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6.0)
+
+
+def stages(resolution: int) -> dict[str, float]:
+    """One run split into grid evaluation, marching cubes and projection + normals."""
+    axes = grid_axes(BOUNDS, resolution)
+    t0 = time.perf_counter()
+    values, _, _ = _evaluate_grid(fig1_part, axes, torch.float32, "cpu", None)
+    t1 = time.perf_counter()
+    index_verts, _, _, _ = marching_cubes(values, level=0.0, gradient_direction="descent")
+    t2 = time.perf_counter()
+    spacing = np.array([a[1] - a[0] for a in axes])
+    _project_vertices(fig1_part, values, index_verts, np.asarray(BOUNDS[0]), spacing, BOUNDS, "cpu")
+    t3 = time.perf_counter()
+    return {"grid": t1 - t0, "marching cubes": t2 - t1, "projection": t3 - t2}
+
+
+def main() -> None:
+    runs = int(sys.argv[1]) if len(sys.argv) > 1 else (3 if QUICK else 5)
+    shape = sdfcad_shape()
+    print(
+        f"meshing the Fig. 1 part over [-1.1, 1.1]^3, median of {runs} runs after a warm-up "
+        f"({os.cpu_count()} CPUs, torch {torch.__version__} with {torch.get_num_threads()} threads)"
+    )
+    for n in RESOLUTIONS:
+        seconds, mesh = median_seconds(lambda n=n: polygonize(fig1_part, BOUNDS, n), runs)
+        err = mesh.volume() - EXACT_VOLUME
+        split = ", ".join(f"{k} {v:.3f} s" for k, v in stages(n).items())
+        print(f"  {n}^3  polygonize {seconds:6.3f} s  volume error {err:+.1e}  {mesh.n_faces} triangles  ({split})")
+        if shape is None:
+            print("         sdfcad not installed: no peer figure")
+            continue
+        peer, soup = median_seconds(lambda n=n: sdfcad_mesh(shape, n), runs)
+        peer_err = soup_volume(soup) - EXACT_VOLUME
+        print(
+            f"         sdfcad     {peer:6.3f} s  volume error {peer_err:+.1e}  {len(soup)} triangles  "
+            f"-> sdfcad / polygonize = {peer / seconds:.2f}x"
+        )
+
+
+if __name__ == "__main__":
+    main()

@@ -167,9 +167,10 @@ class CurvaturePanel(widgets.VBox):
         fig = new_figure(4.6, 2.8)
         ax = fig.add_subplot()
         finite = values[np.isfinite(values)]
-        ax.hist(np.clip(finite, *clim), bins=60, color="#4c72b0")
+        ax.hist(finite, bins=60, range=clim, color="#4c72b0")
         ax.axvline(0.0, color="k", lw=0.8)
-        ax.set_title(f"{key} at the mesh vertices (clipped)", fontsize=9)
+        outside = int(np.sum((finite < clim[0]) | (finite > clim[1])))
+        ax.set_title(f"{key} at the {finite.size} mesh vertices ({outside} outside the range)", fontsize=9)
         ax.set_xlabel(key, fontsize=8)
         ax.set_ylabel("vertices", fontsize=8)
         ax.tick_params(labelsize=7)

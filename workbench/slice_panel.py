@@ -113,7 +113,7 @@ def draw_slices(
             im = ax.contourf(u, v, err, levels=20, cmap="magma")
             ax.contour(u, v, truth, levels=[0.0], colors="c", linewidths=1.0)
             fig.colorbar(im, ax=ax, shrink=0.8).ax.tick_params(labelsize=6)
-            ax.set_title(f"|{name} - d|: mean {np.nanmean(err):.2g}, max {np.nanmax(err):.2g}", fontsize=8)
+            ax.set_title(f"|{name} - d|\nmean {np.nanmean(err):.2g}, max {np.nanmax(err):.2g}", fontsize=8)
             ax.set_aspect("equal")
             ax.tick_params(labelsize=6)
     return figure_png(fig)
@@ -218,7 +218,13 @@ class SlicePanel(widgets.VBox):
         self.worker.wait(timeout)
 
     def true_distance_of(self, model: Model) -> Any:
-        """The model's true signed distance (cached per model; 3-D only)."""
+        """The model's true signed distance: a closed form ``pyfrep_core.models.<name>_distance`` when the
+        core has one (the ellipse of Fig. 4), else ``pyfrep_core.distance.true_distance`` (3-D; cached)."""
+        from pyfrep_core import models
+
+        exact = getattr(models, f"{model.__name__}_distance", None)
+        if callable(exact):
+            return lambda x: exact(x, **model.defaults())
         if model.dim != 3:
             return None
         key = model.__name__

@@ -252,3 +252,22 @@ def test_to_pyvista_carries_normals_and_point_data(fig1_128):
     np.testing.assert_array_equal(poly.point_data["height"], m.vertices[:, 2])
     np.testing.assert_array_equal(poly.point_data["Normals"], m.normals)
     assert poly.volume == pytest.approx(m.volume(), rel=1e-9)
+
+
+def test_demo_writes_the_stl_and_an_off_screen_png(tmp_path, capsys):
+    from pyfrep_core.demo import main
+    from pyfrep_core.io import load_mesh
+
+    assert main(["--out", str(tmp_path / "out"), "--resolution", "40"]) == 0
+    printed = capsys.readouterr().out
+    stl, png = tmp_path / "out" / "fig1.stl", tmp_path / "out" / "fig1.png"
+    assert str(stl) in printed and str(png) in printed and "triangles" in printed
+    assert abs(load_mesh(stl).volume() - FIG1_VOLUME) < 0.03
+    import pyvista as pv
+
+    image = pv.read(str(png)).point_data.active_scalars  # (pixels, 3 or 4) uint8
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and len(image) == 800 * 600
+    background = (image[:, :3] == 255).all(axis=1)
+    assert 0.1 < 1 - background.mean() < 0.9  # the part fills a good share of the picture, not all
+    with pytest.raises(ValueError, match="outside its range"):
+        main(["--out", str(tmp_path), "-r", "2.0"])

@@ -343,3 +343,15 @@ def test_param_derivative_agrees_with_diff_param_grad():
     x = rng.uniform(-1, 1, size=(200, 3))
     ours = param_derivative(fig1_part, x, "r", {"r": 0.42})
     np.testing.assert_allclose(ours, param_grad(fig1_part, x, {"r": 0.42})["r"], rtol=1e-12, atol=1e-12)
+
+
+def test_slice_panel_shows_the_2d_ellipse_directly_with_its_exact_distance():
+    from pyfrep_core.models import ellipse, ellipse_distance
+    from workbench.slice_panel import plane_points, slice_panel
+
+    p = slice_panel(models={"ellipse": ellipse}, resolution=30, threaded=False)
+    assert p.axis.layout.display == "none"  # a planar model has no slicing plane to choose
+    pts, _ = plane_points(ellipse.bounds, 2, 0.0, 30, dim=2)
+    np.testing.assert_allclose(p.values["true distance"], ellipse_distance(pts.reshape(-1, 2)).reshape(30, 30))
+    np.testing.assert_allclose(p.values["f"], ellipse(pts.reshape(-1, 2)).reshape(30, 30))
+    assert set(p.errors) >= {"f", "omega_1", "omega_2", "delta_1"}

@@ -349,9 +349,9 @@ def test_slice_panel_shows_the_2d_ellipse_directly_with_its_exact_distance():
     from pyfrep_core.models import ellipse, ellipse_distance
     from workbench.slice_panel import plane_points, slice_panel
 
-    p = slice_panel(models={"ellipse": ellipse}, resolution=30, threaded=False)
+    p = slice_panel(models={"ellipse": ellipse}, resolution=40, threaded=False)
     assert p.axis.layout.display == "none"  # a planar model has no slicing plane to choose
-    pts, _ = plane_points(ellipse.bounds, 2, 0.0, 30, dim=2)
-    np.testing.assert_allclose(p.values["true distance"], ellipse_distance(pts.reshape(-1, 2)).reshape(30, 30))
-    np.testing.assert_allclose(p.values["f"], ellipse(pts.reshape(-1, 2)).reshape(30, 30))
+    pts, _ = plane_points(ellipse.bounds, 2, 0.0, 40, dim=2)
+    np.testing.assert_allclose(p.values["true distance"], ellipse_distance(pts.reshape(-1, 2)).reshape(40, 40))
+    np.testing.assert_allclose(p.values["f"], ellipse(pts.reshape(-1, 2)).reshape(40, 40))
     assert set(p.errors) >= {"f", "omega_1", "omega_2", "delta_1"}

@@ -85,7 +85,7 @@ class CurvaturePanel(widgets.VBox):
             options=sorted({32, 48, 64, 96, 128, int(resolution)}), value=int(resolution), description="resolution"
         )
         self.quantity = widgets.ToggleButtons(options=list(QUANTITIES), value="mean H", description="colour")
-        self.quantity.style.button_width = "80px"
+        self.quantity.style.button_width = "96px"
         self.clip = widgets.FloatRangeSlider(
             value=(2.0, 98.0), min=0.0, max=100.0, step=0.5, description="percentiles", continuous_update=False
         )

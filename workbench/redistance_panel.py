@@ -83,7 +83,7 @@ class RedistancePanel(widgets.VBox):
         self.loss_chart = LineChart(
             "training loss", "step", "loss", logy=True, schedule=lambda fn: self.main.call(fn, vtk=False)
         )
-        self.slices = widgets.Image(format="png")
+        self.slices = widgets.Image(format="png", layout=widgets.Layout(align_self="flex-start"))  # natural size
         self.model_choice.observe(lambda _: self._show_bounds(), names="value")
         self.train_button.on_click(lambda _: self.start())
         self.stop_button.on_click(lambda _: self.stop())

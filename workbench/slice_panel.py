@@ -160,7 +160,7 @@ class SlicePanel(widgets.VBox):
         self.fields = widgets.SelectMultiple(
             options=FIELDS, value=FIELDS, description="fields", rows=len(FIELDS), layout=lay
         )
-        self.image = widgets.Image(format="png")
+        self.image = widgets.Image(format="png", layout=widgets.Layout(align_self="flex-start"))  # natural size
         self.status = widgets.HTML("slicing...")
         self.worker = LatestWorker(self._compute, self._computed, self.main, settle=0.0)
         self._sync_offset()

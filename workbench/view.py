@@ -160,7 +160,9 @@ class MeshView:
         mapper.lookup_table.scalar_range = clim
         if self.plotter.scalar_bars:
             self.plotter.remove_scalar_bar()
-        self.plotter.add_scalar_bar(title=title or " ", mapper=mapper, n_labels=5, fmt="%.3g", vertical=True)
+        self.plotter.add_scalar_bar(
+            title=title or " ", mapper=mapper, n_labels=5, fmt="%.2g", vertical=True, position_x=0.84, width=0.07
+        )
 
     def overlay_points(self, points: np.ndarray | None, scalars: np.ndarray | None = None, title: str = "") -> None:
         """Show a point cloud (replaced in place), coloured by ``scalars``; None removes it."""

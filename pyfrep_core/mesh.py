@@ -465,7 +465,7 @@ def _roots_on_edges(
     spacing: np.ndarray,
     step_tol: float,
     device: Any,
-    max_iter: int = 10,
+    max_iter: int = 30,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Move each marching-cubes vertex to the root of f on its grid edge (float64).
 

@@ -4,18 +4,20 @@ from __future__ import annotations
 
 import importlib
 import importlib.util
+import io
 import time
 
 import numpy as np
 import pytest
+from PIL import Image
 
 import workbench
 from pyfrep_core import Param, model, sphere
 from pyfrep_core.models import fig1_part
 from pyfrep_core.sensitivity import normal_velocity
 from workbench.app import App
-from workbench.shape_panel import shape_panel
-from workbench.view import resolve_backend
+from workbench.shape_panel import shape_panel, symmetric_range
+from workbench.view import MeshView, resolve_backend
 
 # small, fast fit settings for the tests (the panel's "quick" effort is a bit larger)
 TINY_FIT = {"cycles": 60, "population_size": 20, "children": 10, "epochs": 2, "batch_size": 256, "polish_iters": 8}
@@ -42,7 +44,16 @@ def test_slider_remeshes_in_place_and_updates_status(panel):
     assert panel.view.poly.n_points == panel.mesh.n_vertices
     assert panel.mesh.n_vertices != before_vertices.shape[0] or not np.allclose(panel.mesh.vertices, before_vertices)
     assert "r = 0.35" in panel.status.value and f"{panel.mesh.n_faces} triangles" in panel.status.value
-    assert panel.view.widget.value != before_png  # the picture changed
+    assert panel.view.widget.value != before_png  # the picture changed...
+    fresh = MeshView(backend="image")  # ... to the picture of the new mesh, not a stale frame
+    try:
+        fresh.update(panel.mesh, scalars=panel.scalars, title="v (r)", clim=symmetric_range(panel.scalars))
+        shown, expected = (
+            np.asarray(Image.open(io.BytesIO(bytes(w.value)))) for w in (panel.view.widget, fresh.widget)
+        )
+        assert np.abs(shown.astype(int) - expected).mean() < 0.5
+    finally:
+        fresh.close()
     # the new mesh is the surface at the new radius
     assert np.abs(fig1_part(panel.mesh.vertices, r=0.35)).max() < 1e-9
     # slider range, step and label come from the declaration

@@ -85,6 +85,7 @@ class MeshView:
         self.actor: Any = None
         self.overlay_poly: pv.PolyData | None = None
         self.overlay_actor: Any = None
+        self.bar: Any = None  # the scalar bar actor
         self.renders = 0
         self.last_render_s = 0.0
         self.widget = self._make_widget()
@@ -145,8 +146,8 @@ class MeshView:
         if scalars is None or len(scalars) == 0:
             mapper.scalar_visibility = False
             self.actor.prop.color = self.color
-            if self.plotter.scalar_bars:
-                self.plotter.remove_scalar_bar()
+            if self.bar is not None:
+                self.bar.SetVisibility(False)
             return
         mapper.scalar_visibility = True
         mapper.SetScalarModeToUsePointFieldData()  # colour by the "values" array of the new geometry
@@ -158,11 +159,14 @@ class MeshView:
         mapper.scalar_range = clim
         mapper.lookup_table.cmap = cmap
         mapper.lookup_table.scalar_range = clim
-        if self.plotter.scalar_bars:
-            self.plotter.remove_scalar_bar()
-        self.plotter.add_scalar_bar(
-            title=title or " ", mapper=mapper, n_labels=5, fmt="%.2g", vertical=True, position_x=0.84, width=0.07
-        )
+        # one scalar bar, updated in place (pyvista's add/remove_scalar_bar each render the scene)
+        if self.bar is None:
+            self.bar = self.plotter.add_scalar_bar(
+                title=title or " ", mapper=mapper, n_labels=5, fmt="%.2g", vertical=True, position_x=0.84, width=0.07
+            )
+        self.bar.SetTitle(title or " ")
+        self.bar.SetLookupTable(mapper.lookup_table)
+        self.bar.SetVisibility(True)
 
     def overlay_points(self, points: np.ndarray | None, scalars: np.ndarray | None = None, title: str = "") -> None:
         """Show a point cloud (replaced in place), coloured by ``scalars``; None removes it."""
@@ -213,10 +217,12 @@ class MeshView:
             self.plotter.reset_camera()
         if self.backend == "trame":
             self.plotter.render()  # the trame viewer listens to this render
-        elif self.backend == "image":
-            self.widget.value = self.png()  # the screenshot renders
         else:
-            self.plotter.render_window.Render()  # pyvista's render() waits for a first show()
+            # pyvista's render() does nothing before a first show(), and screenshot() re-reads the
+            # last frame without rendering: render the window itself
+            self.plotter.render_window.Render()
+            if self.backend == "image":
+                self.widget.value = self.png()
         self.renders += 1
         self.last_render_s = time.perf_counter() - t0
 

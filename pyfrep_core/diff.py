@@ -87,7 +87,9 @@ def _map_chunks(fn: Callable, x: torch.Tensor, chunk: int | None, parallel: bool
     if n <= size:
         return fn(x)
     pieces = [x[i : i + size] for i in range(0, n, size)]
-    if parallel and x.device.type == "cpu" and torch.get_num_threads() > 1:
+    # not from inside a worker (an f that itself differentiates): waiting on the pool could deadlock
+    nested = threading.current_thread().name.startswith("pyfrep-diff")
+    if parallel and not nested and x.device.type == "cpu" and torch.get_num_threads() > 1:
         results = list(_workers().map(fn, pieces))
     else:
         results = [fn(p) for p in pieces]

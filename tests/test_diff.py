@@ -294,3 +294,15 @@ def test_value_and_grad_of_a_cylinder_in_float32():
     v, g = value_and_grad(lambda p: cylZ(p, r=0.5), x)
     assert v.dtype == g.dtype == torch.float32
     torch.testing.assert_close(g, torch.tensor([[-1.0, 0.0, 0.0]]))
+
+
+def test_an_f_that_differentiates_inside_the_chunked_threads_does_not_deadlock():
+    x = torch.as_tensor(random_points(64, seed=9))
+
+    def f(p):
+        # a field built from a chunked derivative of another field, evaluated in the pool's threads
+        inner = grad(ball, p.detach(), chunk=8)
+        return (p * inner).sum(-1)
+
+    g = grad(f, x, chunk=16)
+    torch.testing.assert_close(g, -2 * x)

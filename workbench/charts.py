@@ -44,6 +44,15 @@ class LineChart:
     title, xlabel, ylabel : labels.
     logy : log-scale y axis (losses).
     schedule : how a redraw reaches the main thread, ``schedule(fn)``; default: call now.
+
+    Examples
+    --------
+    >>> chart = LineChart("loss", logy=True)
+    >>> for step in range(3):
+    ...     chart.add("sgd", step, 10.0**-step)
+    >>> chart.refresh(force=True)
+    >>> chart.n_points, chart.last("sgd"), bytes(chart.widget.value[:4])
+    (3, 0.01, b'\x89PNG')
     """
 
     def __init__(

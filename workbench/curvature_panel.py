@@ -28,7 +28,15 @@ QUANTITIES = {"mean H": "H", "Gaussian K": "K", "kmin": "kmin", "kmax": "kmax"}
 
 
 def curvature_table(f: Any, x: np.ndarray) -> dict[str, np.ndarray]:
-    """H, K, kmin, kmax at points ``x`` (N, 3), from ``pyfrep_core.curvature``."""
+    """H, K, kmin, kmax at points ``x`` (N, 3), from ``pyfrep_core.curvature``.
+
+    Examples
+    --------
+    >>> from pyfrep_core import sphere
+    >>> t = curvature_table(lambda x: sphere(x, r=2.0), np.array([[0.0, 0.0, 2.0]]))
+    >>> float(t["H"][0]), float(t["K"][0])
+    (0.5, 0.25)
+    """
     from pyfrep_core import curvature
 
     out = curvature.curvatures(f, x)
@@ -45,7 +53,13 @@ def curvature_table(f: Any, x: np.ndarray) -> dict[str, np.ndarray]:
 
 
 def clip_range(values: np.ndarray, percentiles: tuple[float, float]) -> tuple[float, float]:
-    """The colour range: the given percentiles of the finite values."""
+    """The colour range: the given percentiles of the finite values.
+
+    Examples
+    --------
+    >>> clip_range(np.array([0.0, 1.0, 2.0, 3.0, 4.0, np.nan]), (25, 75))
+    (1.0, 3.0)
+    """
     finite = values[np.isfinite(values)]
     if finite.size == 0:
         return (-1.0, 1.0)

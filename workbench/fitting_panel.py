@@ -33,7 +33,15 @@ EFFORT: dict[str, dict[str, Any]] = {
 
 
 def hidden_params(model: Model, seed: int) -> dict[str, float]:
-    """Parameter values drawn uniformly in the middle 60% of each declared range (the 'unknown' truth)."""
+    """Parameter values drawn uniformly in the middle 60% of each declared range (the 'unknown' truth).
+
+    Examples
+    --------
+    >>> from pyfrep_core.models import fig1_part
+    >>> r = hidden_params(fig1_part, seed=0)["r"]
+    >>> 0.2 + 0.2 * 0.6 <= r <= 0.8 - 0.2 * 0.6
+    True
+    """
     rng = np.random.default_rng(seed)
     return {k: float(p.lower + (0.2 + 0.6 * rng.random()) * (p.upper - p.lower)) for k, p in model.params.items()}
 

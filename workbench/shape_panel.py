@@ -35,7 +35,15 @@ COLOURINGS = ("sensitivity", "plain")
 
 
 def param_slider(name: str, param: Any, value: float | None = None) -> widgets.FloatSlider:
-    """A slider for one declared ``Param``: its range, a step of range/200, its label."""
+    """A slider for one declared ``Param``: its range, a step of range/200, its label.
+
+    Examples
+    --------
+    >>> from pyfrep_core import Param
+    >>> s = param_slider("r", Param(0.5, 0.2, 0.8, label="cylinder radius"))
+    >>> s.description, s.min, s.max, round(s.step, 6)
+    ('cylinder radius', 0.2, 0.8, 0.003)
+    """
     span = param.upper - param.lower
     step = span / 200.0
     decimals = max(0, int(np.ceil(-np.log10(step))) + 1) if step < 1 else 0
@@ -54,7 +62,15 @@ def param_slider(name: str, param: Any, value: float | None = None) -> widgets.F
 
 def symmetric_range(values: np.ndarray, percentile: float = 99.0) -> tuple[float, float]:
     """(-top, top) with top the ``percentile`` of |values| (vertices on creases, where the
-    sensitivity is a sub-gradient, do not set the scale), the maximum when that is 0; (-1, 1) if all are 0."""
+    sensitivity is a sub-gradient, do not set the scale), the maximum when that is 0; (-1, 1) if all are 0.
+
+    Examples
+    --------
+    >>> symmetric_range(np.array([0.0] * 98 + [1.0, -3.0]), percentile=99.0)[1] > 0
+    True
+    >>> symmetric_range(np.zeros(5))
+    (-1.0, 1.0)
+    """
     size = np.abs(values[np.isfinite(values)])
     top = float(np.percentile(size, percentile)) if size.size else 0.0
     if top <= 0 and size.size:

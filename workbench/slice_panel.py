@@ -33,7 +33,14 @@ AXES = ("x", "y", "z")
 
 
 def plane_points(bounds: Any, axis: int, offset: float, n: int, dim: int = 3) -> tuple[np.ndarray, list[np.ndarray]]:
-    """Points (n, n, dim) of the plane ``x[axis] = offset`` across ``bounds``; and its two axes."""
+    """Points (n, n, dim) of the plane ``x[axis] = offset`` across ``bounds``; and its two axes.
+
+    Examples
+    --------
+    >>> pts, (u, v) = plane_points(((-1, -1, -1), (1, 1, 1)), axis=0, offset=0.25, n=3)
+    >>> pts.shape, pts[..., 0].min(), pts[..., 0].max(), u.tolist()
+    ((3, 3, 3), 0.25, 0.25, [-1.0, 0.0, 1.0])
+    """
     lo, hi = bounds
     if dim == 2:
         u, v = np.linspace(lo[0], hi[0], n), np.linspace(lo[1], hi[1], n)

@@ -48,7 +48,16 @@ def _in_kernel() -> bool:
 
 
 def resolve_backend(backend: str = "auto") -> str:
-    """``"trame"`` or ``"image"``; ``"auto"`` reads ``$PYFREP_VIEW``, then probes for a kernel and trame."""
+    """``"trame"``, ``"image"`` or ``"offscreen"``; ``"auto"`` reads ``$PYFREP_VIEW``, then probes
+    for a kernel and trame.
+
+    Examples
+    --------
+    >>> resolve_backend("image")
+    'image'
+    >>> resolve_backend("auto") if "PYFREP_VIEW" not in os.environ else "image"  # no kernel in a doctest
+    'image'
+    """
     if backend == "auto":
         backend = os.environ.get("PYFREP_VIEW", "auto").strip().lower() or "auto"
     if backend == "auto":
@@ -72,6 +81,18 @@ class MeshView:
     backend : "auto", "trame" or "image" (see module docstring).
     size : window size in pixels (width, height).
     color : surface colour when no scalars are shown.
+
+    Examples
+    --------
+    >>> from pyfrep_core import polygonize, sphere
+    >>> view = MeshView(backend="image", size=(160, 120))
+    >>> mesh = polygonize(lambda x: sphere(x, r=1.0), ((-1.2,) * 3, (1.2,) * 3), 16)
+    >>> view.update(mesh, scalars=mesh.vertices[:, 2], title="z")
+    >>> poly = view.poly
+    >>> view.update(mesh, scalars=-mesh.vertices[:, 2])  # same PolyData, new colours
+    >>> view.poly is poly, bytes(view.widget.value[:4])
+    (True, b'\x89PNG')
+    >>> view.close()
     """
 
     def __init__(self, backend: str = "auto", size: tuple[int, int] = (640, 480), color: str = "#c8c8d2"):

@@ -366,3 +366,17 @@ def test_slice_panel_shows_the_2d_ellipse_directly_with_its_exact_distance():
     np.testing.assert_allclose(p.values["true distance"], ellipse_distance(pts.reshape(-1, 2)).reshape(40, 40))
     np.testing.assert_allclose(p.values["f"], ellipse(pts.reshape(-1, 2)).reshape(40, 40))
     assert set(p.errors) >= {"f", "omega_1", "omega_2", "delta_1"}
+
+
+def test_shape_panel_switches_models_in_the_same_view():
+    p = shape_panel(fig1_part, resolution=32, backend="image", threaded=False, choices={"ball": ball_model})
+    try:
+        poly, plotter = p.view.poly, p.view.plotter
+        p.choice.value = "ball"
+        assert list(p.sliders) == ["r"] and p.sliders["r"].description == "radius"
+        assert p.slider_box.children == (p.sliders["r"],)
+        assert p.view.poly is poly and p.view.plotter is plotter
+        np.testing.assert_allclose(np.linalg.norm(p.mesh.vertices, axis=1), 0.8, atol=1e-9)
+        assert "(-1.2, -1.2, -1.2)" in p.bounds.value
+    finally:
+        p.view.close()

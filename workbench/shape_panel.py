@@ -251,6 +251,7 @@ class ShapePanel(widgets.VBox):
         """Ask for a new mesh of the current state (coalesced with requests not yet started)."""
         res = int(self.resolution.value)
         job = {
+            "model": self.model,
             "params": self.params,
             "resolution": res,
             "bounds": self._bounds_value,
@@ -280,13 +281,13 @@ class ShapePanel(widgets.VBox):
     # -- work (background thread) ------------------------------------------------------------
     def _build(self, job: dict) -> dict:
         t0 = time.perf_counter()
-        params = job["params"]
+        model, params = job["model"], job["params"]  # the job's own: the panel may have moved on
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
-            mesh = polygonize(lambda x: self.model(x, **params), job["bounds"], job["resolution"])
+            mesh = polygonize(lambda x: model(x, **params), job["bounds"], job["resolution"])
         scalars = None
         if job["colouring"] == "sensitivity" and job["moved"] is not None and not mesh.is_empty():
-            scalars = normal_velocity(self.model, mesh.vertices, job["moved"], params)
+            scalars = normal_velocity(model, mesh.vertices, job["moved"], params)
         note = "; ".join(str(w.message) for w in caught)
         return {"mesh": mesh, "scalars": scalars, "seconds": time.perf_counter() - t0, "note": note}
 

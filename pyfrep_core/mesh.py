@@ -40,7 +40,7 @@ __all__ = [
 
 CHUNK_POINTS = 1 << 16  # grid points per evaluation chunk on the CPU: the temporaries stay in cache
 CHUNK_POINTS_GPU = 1 << 22
-ROOT_CHUNK = 1 << 18  # vertices per float64 evaluation while refining
+ROOT_CHUNK = 1 << 16  # vertices per float64 evaluation (and autograd pass) while projecting
 GiB = float(1 << 30)
 
 
@@ -204,17 +204,20 @@ def grid_memory(resolution: int | tuple[int, ...], dtype: torch.dtype = torch.fl
     """Estimated peak bytes to evaluate and mesh a grid of ``resolution`` samples per axis.
 
     The grid itself (4 or 8 bytes a sample; marching cubes needs a float32 copy of a
-    float64 grid), a quarter more for marching cubes' per-slice tables and its output,
-    and 64 MiB of chunk temporaries.
+    float64 grid) and a quarter more for marching cubes, 256 MiB for the temporaries of the
+    chunked evaluation and autograd passes, and 400 bytes a vertex for the projection,
+    counting 4 n^2 vertices for n samples per axis (a closed part's typical surface; a
+    lattice has more).
 
     Examples
     --------
     >>> round(grid_memory(512) / 2**30, 2)
-    0.69
+    1.27
     """
-    n = math.prod(_resolution(resolution, 3))
+    res = _resolution(resolution, 3)
     per_sample = 4 if dtype == torch.float32 else 8 + 4
-    return int(n * per_sample * 1.25) + (64 << 20)
+    vertices = 4 * max(res[0] * res[1], res[1] * res[2], res[0] * res[2])
+    return int(math.prod(res) * per_sample * 1.25) + (256 << 20) + 400 * vertices
 
 
 def _check_memory(resolution: tuple[int, ...], dtype: torch.dtype) -> None:
@@ -412,7 +415,7 @@ def _value_and_grad(f: Callable, x: np.ndarray, device: Any) -> tuple[np.ndarray
     """f and grad f at points x (N, 3) in float64 (numpy out)."""
     if len(x) == 0:
         return np.zeros(0), np.zeros((0, 3))
-    value, gradient = value_and_grad(f, torch.as_tensor(x, dtype=torch.float64, device=device))
+    value, gradient = value_and_grad(f, torch.as_tensor(x, dtype=torch.float64, device=device), chunk=ROOT_CHUNK)
     return value.cpu().numpy(), gradient.cpu().numpy()
 
 

@@ -280,10 +280,13 @@ class FittingPanel(widgets.VBox):
         )
         head = "<tr><th>param</th><th>fitted</th>" + ("<th>true</th><th>|error|</th>" if self.truth else "") + "</tr>"
         stopped = " <b>(stopped early)</b>" if result.stopped else ""
+        res = result.residuals
         self.status.value = (
             f"<span class='fit-done'>fit done in {time.perf_counter() - self._t0:.1f} s{stopped}: "
             f"loss {result.loss:.3e}, stages {', '.join(result.stages)}; residual max "
-            f"{float(np.max(result.residuals)):.2e}</span><table>{head}{rows}</table>"
+            f"{float(np.max(res)):.2e}</span><br><small>cloud coloured by the residual |f(x_i; p)| "
+            f"(viridis, {float(np.min(res)):.2e} dark to {float(np.max(res)):.2e} yellow); "
+            f"fitted surface translucent</small><table>{head}{rows}</table>"
         )
 
     def _error(self, err: BaseException) -> None:

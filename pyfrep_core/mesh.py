@@ -338,8 +338,9 @@ def polygonize(
     bounds : ((xmin, ymin, zmin), (xmax, ymax, zmax)); the grid's end points lie on them.
     resolution : grid samples per axis (an integer >= 2, or three).
     project : move the vertices onto f = 0 in float64 (root finding along each marching-cubes
-        edge, Newton steps along grad f where that does not apply); False keeps marching
-        cubes' linear interpolation.  Normals come from -grad f either way.
+        edge, Newton steps along grad f where that does not apply), to a first-order distance
+        |f| / |grad f| below 1e5 ulp of the largest coordinate (2.4e-11 in [-1.1, 1.1]^3);
+        False keeps marching cubes' linear interpolation.  Normals come from -grad f either way.
     dtype : dtype of the grid evaluation (float32 is fast; vertices are float64 either way).
     device : where f is evaluated.
 
@@ -397,7 +398,7 @@ def polygonize(
 
 
 def _tolerance(lo: Any, hi: Any) -> float:
-    """Distance tolerance of the projection: 100 ulp of the largest coordinate (as project_to_surface)."""
+    """100 ulp of the largest coordinate (project_to_surface's default tolerance)."""
     return 100.0 * float(np.finfo(np.float64).eps) * max(1.0, float(np.abs([lo, hi]).max()))
 
 
@@ -428,10 +429,14 @@ def _project_vertices(
     bounds: Any,
     device: Any,
 ) -> tuple[np.ndarray, np.ndarray, int]:
-    """Vertices on f = 0 (float64), grad f there, and how many could not be moved."""
-    tol = _tolerance(*bounds)
+    """Vertices on f = 0 (float64), grad f there, and how many could not be moved.
+
+    A vertex counts as on the surface when its first-order distance |f| / |grad f| is below
+    1000 times 100 ulp of the largest coordinate (2.4e-11 for the box [-1.1, 1.1]^3).
+    """
+    accept = 1e3 * _tolerance(*bounds)
     mc_verts = origin + index_verts.astype(np.float64) * spacing
-    # iterate until the next step is below 1e-9 cells; every result is then checked against 1e3 tol
+    # iterate until the next step is below 1e-9 cells; every result is then checked against `accept`
     verts, done = _roots_on_edges(f, values, index_verts, origin, spacing, 1e-9 * float(spacing.min()), device)
     gradient = np.empty_like(verts)
     if done.any():
@@ -440,14 +445,14 @@ def _project_vertices(
         # |f| / |grad f| (|grad f| at least the median, so that f = 0 where grad f vanishes passes)
         length = np.linalg.norm(gradient[done], axis=1)
         distance = np.abs(value) / np.maximum(length, np.median(length))
-        done[np.flatnonzero(done)[~(distance <= 1e3 * tol)]] = False
+        done[np.flatnonzero(done)[~(distance <= accept)]] = False
     rest = np.flatnonzero(~done)
     n_failed = 0
     if len(rest):
         # vertices on a grid node, slow on their edge, or failing the check: Newton along grad f
         cell = float(np.linalg.norm(spacing))
         start = torch.as_tensor(verts[rest], dtype=torch.float64, device=device)
-        proj = project_to_surface(f, start, tol=tol, max_step=cell, max_distance=cell, warn=False)
+        proj = project_to_surface(f, start, tol=accept, max_step=cell, max_distance=cell, warn=False)
         points, converged = proj.points.cpu().numpy(), proj.converged.cpu().numpy()
         ok = converged & np.all((points >= bounds[0]) & (points <= bounds[1]), axis=1)
         verts[rest[ok]] = points[ok]

@@ -137,6 +137,18 @@ def test_evaluate_grid_order_end_points_and_chunks():
         np.testing.assert_allclose(v, expected, rtol=0, atol=1e-12)
 
 
+def test_f_sees_bounded_chunks_only():
+    sizes = []
+
+    def f(x):
+        sizes.append(x.shape[:-1].numel())
+        return sphere(x, r=0.8)
+
+    m = polygonize(f, ((-1.0,) * 3, (1.0,) * 3), 96)
+    assert sum(sizes) > 96**3 + m.n_vertices  # the grid, then the vertices
+    assert max(sizes) <= 1 << 16  # memory stays bounded however fine the grid
+
+
 def test_no_surface_gives_an_empty_mesh_and_a_warning():
     with pytest.warns(RuntimeWarning, match="does not change sign"):
         m = polygonize(lambda x: sphere(x, center=(5.0, 0.0, 0.0), r=1.0), BOX, 16)

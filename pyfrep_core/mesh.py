@@ -339,7 +339,7 @@ def polygonize(
     resolution : grid samples per axis (an integer >= 2, or three).
     project : move the vertices onto f = 0 in float64 (root finding along each marching-cubes
         edge, Newton steps along grad f where that does not apply), to a first-order distance
-        |f| / |grad f| below 1e5 ulp of the largest coordinate (2.4e-11 in [-1.1, 1.1]^3);
+        |f| / |grad f| below 100 ulp of the largest coordinate (2.4e-14 in [-1.1, 1.1]^3);
         False keeps marching cubes' linear interpolation.  Normals come from -grad f either way.
     dtype : dtype of the grid evaluation (float32 is fast; vertices are float64 either way).
     device : where f is evaluated.
@@ -432,12 +432,12 @@ def _project_vertices(
     """Vertices on f = 0 (float64), grad f there, and how many could not be moved.
 
     A vertex counts as on the surface when its first-order distance |f| / |grad f| is below
-    1000 times 100 ulp of the largest coordinate (2.4e-11 for the box [-1.1, 1.1]^3).
+    100 ulp of the largest coordinate (project_to_surface's tolerance; 2.4e-14 in [-1.1, 1.1]^3).
     """
-    accept = 1e3 * _tolerance(*bounds)
+    accept = _tolerance(*bounds)
     mc_verts = origin + index_verts.astype(np.float64) * spacing
-    # iterate until the next step is below 1e-9 cells; every result is then checked against `accept`
-    verts, done = _roots_on_edges(f, values, index_verts, origin, spacing, 1e-9 * float(spacing.min()), device)
+    # iterate until the next step is below 1e-11 cells; every result is then checked against `accept`
+    verts, done = _roots_on_edges(f, values, index_verts, origin, spacing, 1e-11 * float(spacing.min()), device)
     gradient = np.empty_like(verts)
     if done.any():
         value, gradient[done] = _value_and_grad(f, verts[done], device)

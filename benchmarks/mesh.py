@@ -8,7 +8,8 @@ proves empty) returning a triangle soup.  Issue targets: at or below fogleman/sd
 1.5 s at 256^3 and 0.30 s at 128^3 on this kind of machine).
 
 Times are the median of a few runs after a warm-up; on a machine shared with other jobs they
-are noisy (torch's threads wait for each other when a core is taken).
+are noisy (torch's threads wait for each other when a core is taken), so polygonize is also
+timed with one torch thread.
 
 Run: ``.venv/bin/python benchmarks/mesh.py [runs]`` (PYFREP_QUICK=1: 3 runs).
 """
@@ -90,6 +91,14 @@ def main() -> None:
         err = mesh.volume() - EXACT_VOLUME
         split = ", ".join(f"{k} {v:.3f} s" for k, v in stages(n).items())
         print(f"  {n}^3  polygonize {seconds:6.3f} s  volume error {err:+.1e}  {mesh.n_faces} triangles  ({split})")
+        threads = torch.get_num_threads()
+        if threads > 1:  # robust against busy neighbours: no thread waits for another
+            torch.set_num_threads(1)
+            try:
+                one, _ = median_seconds(lambda n=n: polygonize(fig1_part, BOUNDS, n), runs)
+            finally:
+                torch.set_num_threads(threads)
+            print(f"         polygonize {one:6.3f} s  with 1 torch thread")
         if shape is None:
             print("         sdfcad not installed: no peer figure")
             continue

@@ -88,7 +88,7 @@ def main() -> None:
 
     original, module.RedistancedSDF = module.RedistancedSDF, Watched
     try:
-        model = redistance(f, BOUNDS, steps=600, callback=watch, every=25, progress=False)
+        model = redistance(f, BOUNDS, callback=watch, every=50, progress=False)
     finally:
         module.RedistancedSDF = original
     total = time.perf_counter() - t0 - state["eval"]

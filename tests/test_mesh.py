@@ -1,6 +1,7 @@
 """polygonize and Mesh: the Fig. 1 part against its exact volume, spheres against closed forms, bad input."""
 
 import math
+import os
 import re
 import tracemalloc
 import warnings
@@ -10,6 +11,7 @@ import pytest
 import torch
 
 from pyfrep_core import Mesh, Param, model, polygonize, sphere
+from pyfrep_core.diff import value_and_grad
 from pyfrep_core.mesh import GridTooLargeError, evaluate_grid, grid_axes, grid_memory
 from pyfrep_core.models import fig1_part
 
@@ -283,3 +285,91 @@ def test_demo_writes_the_stl_and_an_off_screen_png(tmp_path, capsys):
     assert 0.1 < 1 - background.mean() < 0.9  # the part fills a good share of the picture, not all
     with pytest.raises(ValueError, match="outside its range"):
         main(["--out", str(tmp_path), "-r", "2.0"])
+
+
+# --------------------------------------------------------------------------- sparse (coarse-to-fine) evaluation
+
+H128 = 2.2 / 127  # fine cell at 128^3 over BOX
+_AXES128 = grid_axes(BOX, 128)[0]
+BLOCK_CENTRE = tuple(float(_AXES128[4 * k + 2]) for k in (13, 17, 22))  # farthest from the coarse corners
+
+
+def _sparse_cases():
+    from pyfrep_core import blobby, gyroidSheet, metaBall, sdf, torusZ, union
+    from pyfrep_core.models import microstructure, pawn, schwarz_d
+
+    quick = os.environ.get("PYFREP_QUICK", "") not in ("", "0")
+    return [
+        ("fig1 64", fig1_part, BOX, 64),
+        ("fig1 128", fig1_part, BOX, 128),
+        ("fig1 256", fig1_part, BOX, 160 if quick else 256),
+        ("sphere", lambda x: sphere(x, r=0.8), BOX, 96),
+        ("torus", lambda x: torusZ(x, R=0.6, r=0.2), BOX, 96),
+        # features smaller than a coarse block (4^3 cells) that change no coarse corner's sign
+        ("ball of one cell", lambda x: sphere(x, center=(0.113, -0.271, 0.3377), r=H128), BOX, 128),
+        ("ball at a block centre", lambda x: sphere(x, center=BLOCK_CENTRE, r=1.2 * H128), BOX, 128),
+        ("sdf ball at a block centre", lambda x: sdf.sphere(x, center=BLOCK_CENTRE, r=1.2 * H128), BOX, 128),
+        ("thin gyroidSheet", lambda x: gyroidSheet(x, 1.0, 1.0, 1.0, 0.05, -0.05), BOX, 96 if quick else 128),
+        ("SchwarzD", schwarz_d, schwarz_d.bounds, 96 if quick else 128),
+        ("microstructure", microstructure, microstructure.bounds, 64 if quick else 128),
+        ("pawn", pawn, pawn.bounds, 128),
+        ("blobby", lambda x: blobby(x, [-0.3, 0.35, 0.0], [0.0, 0.1, 0.4], [0.0, -0.2, 0.3], 8.0, 1.0, 0.5), BOX, 96),
+        (
+            "metaBall",
+            lambda x: metaBall(x, [-0.3, 0.35, 0.0], [0.0, 0.1, 0.4], [0.0, -0.2, 0.3], 1.0, 0.9, 0.3),
+            BOX,
+            96,
+        ),
+        (
+            "two nearly touching balls",
+            lambda x: union(sphere(x, center=(-0.4, 0, 0), r=0.395), sphere(x, center=(0.4, 0, 0), r=0.395)),
+            BOX,
+            128,
+        ),
+    ]
+
+
+@pytest.mark.parametrize("case", _sparse_cases(), ids=lambda c: c[0])
+def test_sparse_evaluation_gives_the_dense_mesh(case, monkeypatch):
+    import pyfrep_core.mesh as mesh_module
+
+    _, f, bounds, n = case
+    # never fall back to the dense grid, so that lattices exercise the sparse path too
+    monkeypatch.setattr(mesh_module, "SPARSE_MAX_FRACTION", 1.0)
+    dense = polygonize(f, bounds, n)
+    sparse = polygonize(f, bounds, n, sparse=True)
+    assert dense.n_faces > 0
+    np.testing.assert_array_equal(sparse.faces, dense.faces)
+    np.testing.assert_allclose(sparse.vertices, dense.vertices, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(sparse.normals, dense.normals, rtol=0, atol=1e-12)
+
+
+def test_sparse_evaluation_skips_most_of_the_grid_and_falls_back_on_lattices():
+    from pyfrep_core.mesh import SPARSE_STEP, _sparse_grid
+
+    calls = []
+
+    def f(x):
+        calls.append(x.shape[:-1].numel())
+        return fig1_part(x)
+
+    values, vmin, vmax, mask = _sparse_grid(f, grid_axes(BOX, 128), torch.float32, "cpu", SPARSE_STEP, 0.5)
+    assert values.shape == mask.shape == (128,) * 3 and vmin < 0 < vmax
+    assert sum(calls) < 0.6 * 128**3  # fine values only near the surface
+    assert mask.mean() < 0.2  # marching cubes visits the blocks the surface crosses
+    from pyfrep_core import gyroidSheet
+
+    lattice = _sparse_grid(lambda x: gyroidSheet(x), grid_axes(BOX, 64), torch.float32, "cpu", SPARSE_STEP, 0.5)
+    assert lattice is None  # surface everywhere: polygonize evaluates densely
+
+
+def test_sparse_mesh_of_no_surface_is_empty_with_a_warning():
+    with pytest.warns(RuntimeWarning, match="does not change sign"):
+        assert polygonize(lambda x: sphere(x, center=(5.0, 0.0, 0.0), r=1.0), BOX, 32, sparse=True).is_empty()
+
+
+def test_polygonize_keeps_grad_f_at_the_vertices(fig1_128):
+    m = fig1_128
+    exact = value_and_grad(fig1_part, torch.as_tensor(m.vertices))[1].numpy()
+    np.testing.assert_allclose(m.gradient, exact, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(m.normals, -exact / np.linalg.norm(exact, axis=1, keepdims=True), atol=1e-12)

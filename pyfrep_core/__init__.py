@@ -25,6 +25,7 @@ from .convolution import *  # noqa: F403
 from .convolution import __all__ as _convolution_all
 from .curvature import Curvatures, attach_curvatures, curvatures, gaussian_curvature, mean_curvature
 from .diff import div, grad, hessian, laplacian, p_laplacian, param_grad, project_to_surface, value_and_grad
+from .distance import distance_error, fmm_distance, true_distance
 from .fitting import FitResult, fit
 from .io import load_mesh, load_points, save_mesh, save_points
 from .lattices import *  # noqa: F403
@@ -39,6 +40,7 @@ from .periodic import __all__ as _periodic_all
 from .primitives import *  # noqa: F403
 from .primitives import __all__ as _primitives_all
 from .progress import Event, Progress
+from .redistancing import RedistancedSDF, load_redistanced, redistance
 from .sampling import sample_surface
 from .sensitivity import normal_velocity
 from .transforms import *  # noqa: F403
@@ -53,16 +55,20 @@ __all__ = [
     "Model",
     "Param",
     "Progress",
+    "RedistancedSDF",
     "attach_curvatures",
     "curvatures",
     "delta_1",
+    "distance_error",
     "div",
     "fit",
+    "fmm_distance",
     "gaussian_curvature",
     "grad",
     "hessian",
     "laplacian",
     "load_mesh",
+    "load_redistanced",
     "load_points",
     "mean_curvature",
     "model",
@@ -74,10 +80,12 @@ __all__ = [
     "param_grad",
     "polygonize",
     "project_to_surface",
+    "redistance",
     "sample_surface",
     "save_mesh",
     "save_points",
     "sdf",
+    "true_distance",
     "value_and_grad",
     *_convolution_all,
     *_lattices_all,

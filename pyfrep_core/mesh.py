@@ -615,7 +615,53 @@ def polygonize(
     else:
         verts = origin + index_verts.astype(np.float64) * spacing
         gradient = _value_and_grad(f, verts, device)[1]
+    verts, faces, gradient = _collapse_coincident(verts, faces, gradient)
     return Mesh(verts, faces, _normals(gradient, verts, faces), gradient=gradient)
+
+
+def _edge_counts(faces: np.ndarray) -> np.ndarray:
+    edges = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    return np.unique(edges[:, 0] * (int(faces.max()) + 1) + edges[:, 1], return_counts=True)[1]
+
+
+def _collapse_coincident(
+    verts: np.ndarray, faces: np.ndarray, gradient: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Merge the vertices of a face that landed on the same point; drop the faces that collapse.
+
+    Newton steps (the fallback of the projection) can move two vertices of a triangle next to
+    a sharp crease onto the same point: a zero-area triangle, which STL readers drop (VTK's
+    merges points, leaving a hole).  Collapsing such an edge removes the two triangles that
+    share it and keeps the mesh closed, unless the collapse would pinch it (an edge then in
+    more than two faces, or a changed border): then the mesh is returned unchanged.
+    """
+    if len(faces) == 0:
+        return verts, faces, gradient
+    corners = [verts[faces[:, k]] for k in range(3)]
+    pairs = [faces[(corners[i] == corners[j]).all(axis=1)][:, [i, j]] for i, j in ((0, 1), (1, 2), (2, 0))]
+    pairs = np.concatenate(pairs)
+    if len(pairs) == 0:
+        return verts, faces, gradient
+    label = np.arange(len(verts))
+    while True:  # every vertex of a coincident cluster points to the cluster's smallest index
+        low = np.minimum(label[pairs[:, 0]], label[pairs[:, 1]])
+        new = label.copy()
+        np.minimum.at(new, pairs[:, 0], low)
+        np.minimum.at(new, pairs[:, 1], low)
+        new = new[new]
+        if np.array_equal(new, label):
+            break
+        label = new
+    merged = label[faces]
+    keep = (merged[:, 0] != merged[:, 1]) & (merged[:, 1] != merged[:, 2]) & (merged[:, 2] != merged[:, 0])
+    merged = merged[keep]
+    before, after = _edge_counts(faces), _edge_counts(merged)
+    if after.max() > 2 or (after == 1).sum() != (before == 1).sum():
+        return verts, faces, gradient  # a collapse would pinch the surface: keep the zero-area triangles
+    used = np.unique(merged)
+    index = np.full(len(verts), -1, dtype=np.int64)
+    index[used] = np.arange(len(used))
+    return verts[used], index[merged], gradient[used]
 
 
 def _tolerance(lo: Any, hi: Any) -> float:
@@ -698,7 +744,7 @@ def _roots_on_edges(
     spacing: np.ndarray,
     step_tol: float,
     device: Any,
-    max_iter: int = 30,
+    max_iter: int = 12,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Move each marching-cubes vertex to the root of f on its grid edge (float64).
 

@@ -12,8 +12,9 @@ Training minimizes, over minibatches,
   bounds, grad d by one backward pass with ``create_graph=True``; or, with
   ``loss="p-poisson"``, the p-Poisson energy ``E (|grad d|^p / p - |d|)``, whose minimizer
   (-Delta_p |d| = 1, |d| = 0 on the surface) tends to the distance as p grows (Fayolle 2021
-  uses both); it needs only first derivatives, but for a finite p its minimizer is below the
-  distance away from the surface, so keep the supervised term on with it;
+  uses both); it needs only first derivatives, but for a finite p its minimizer only
+  approximates the distance (in 1-D its slope is (distance to the medial axis)^(1/(p-1))),
+  so keep the supervised term on with it;
 * a supervised term ``E (g(x) - d*(x))^2`` on a pool of points whose distance d* is known:
   the distance to dense projected surface samples refined by closest-point steps
   (:func:`pyfrep_core.distance.true_distance`), plus g = 0 on surface points.  It is what
@@ -24,8 +25,10 @@ Training minimizes, over minibatches,
 Choices measured on the ellipsoid (1, 0.6, 0.4) in [-1.5, 1.5]^3 on 2 CPU cores
 (benchmarks/redistance.py; mean absolute error on a 40^3 grid, exact distance):
 
-* the paper's 8 x 512 softplus network: 147 ms per step; torch's Softplus is also ~10x slower
-  than SiLU in the double backward of the eikonal term, so SiLU;
+* the paper's 8 x 512 softplus network: 147 ms per step (the issue's figure); torch's Softplus
+  is also ~10x slower than SiLU in the double backward of the eikonal term (measured at
+  3 x 128), so SiLU; a softplus written with elementary ops (beta 10): 7.0e-3 vs 8.1e-3 on the
+  box after 600 steps, at ~2.5x the time;
 * 3 x 128 SiLU, inputs scaled to [-1, 1], float32: ~6 ms per step with 2048 pool points
   (supervised, plain backward) and 512 fresh uniform points (eikonal, double backward);
 * Adam with a cosine decay: peak lr 1e-2 -> 3.7e-3 after 1500 steps, 3e-2 -> 2.1e-3,

@@ -1,7 +1,10 @@
 """Meshing the Fig. 1 part over [-1.1, 1.1]^3 at 128^3 and 256^3: seconds, volume error, and sdfcad.
 
-``polygonize`` = float32 grid evaluation + scikit-image marching cubes + every vertex moved
-onto f = 0 in float64 + normals from grad f.  The peer is ``sdfcad`` (a PyPI fork of
+``polygonize`` = float32 grid evaluation (dense, or ``sparse=True``: exactly only in blocks
+near the surface, the same mesh) + scikit-image marching cubes + every vertex moved onto
+f = 0 in float64 + normals from grad f.  Evaluation runs in chunks of 2^15 points on a pool
+of single-threaded workers (torch's own 2-thread operations stall when a core is busy).
+The peer is ``sdfcad`` (a PyPI fork of
 fogleman/sdf) on the same shape written with its own operations, with the same voxel size,
 in the same run: ``generate`` (threaded, sparse: it skips blocks that the distance bound
 proves empty) returning a triangle soup.  Issue targets: at or below fogleman/sdf (about
@@ -9,7 +12,7 @@ proves empty) returning a triangle soup.  Issue targets: at or below fogleman/sd
 
 Times are the median of a few runs after a warm-up; on a machine shared with other jobs they
 are noisy (torch's threads wait for each other when a core is taken), so polygonize is also
-timed with one torch thread.
+timed with one torch thread; the load average is printed with the figures.
 
 Run: ``.venv/bin/python benchmarks/mesh.py [runs]`` (PYFREP_QUICK=1: 3 runs).
 """
@@ -26,7 +29,15 @@ import torch
 from skimage.measure import marching_cubes
 
 from pyfrep_core import polygonize
-from pyfrep_core.mesh import _evaluate_grid, _project_vertices, grid_axes
+from pyfrep_core.mesh import (
+    SPARSE_GUARD,
+    SPARSE_STEP,
+    _evaluate_grid,
+    _exact_neighbours,
+    _project_vertices,
+    _sparse_grid,
+    grid_axes,
+)
 from pyfrep_core.models import fig1_part
 
 QUICK = os.environ.get("PYFREP_QUICK", "") not in ("", "0")
@@ -66,17 +77,20 @@ def soup_volume(triangles: np.ndarray) -> float:
 
 
 def stages(resolution: int) -> dict[str, float]:
-    """One run split into grid evaluation, marching cubes and projection + normals."""
+    """One run split into grid evaluation (dense and sparse), marching cubes and projection + grad f."""
     axes = grid_axes(BOUNDS, resolution)
     t0 = time.perf_counter()
-    values, _, _ = _evaluate_grid(fig1_part, axes, torch.float32, "cpu", None)
+    _evaluate_grid(fig1_part, axes, torch.float32, "cpu", None)
     t1 = time.perf_counter()
-    index_verts, _, _, _ = marching_cubes(values, level=0.0, gradient_direction="descent")
+    values, _, _, mask, evaluated = _sparse_grid(fig1_part, axes, torch.float32, "cpu", SPARSE_STEP, SPARSE_GUARD)
     t2 = time.perf_counter()
-    spacing = np.array([a[1] - a[0] for a in axes])
-    _project_vertices(fig1_part, values, index_verts, np.asarray(BOUNDS[0]), spacing, BOUNDS, "cpu")
+    index_verts, _, _, _ = marching_cubes(values, level=0.0, gradient_direction="descent", mask=mask)
     t3 = time.perf_counter()
-    return {"grid": t1 - t0, "marching cubes": t2 - t1, "projection": t3 - t2}
+    spacing = np.array([a[1] - a[0] for a in axes])
+    _exact_neighbours(fig1_part, values, index_verts, evaluated, SPARSE_STEP, axes, torch.float32, "cpu")
+    _project_vertices(fig1_part, values, index_verts, np.asarray(BOUNDS[0]), spacing, BOUNDS, "cpu")
+    t4 = time.perf_counter()
+    return {"dense grid": t1 - t0, "sparse grid": t2 - t1, "marching cubes": t3 - t2, "projection": t4 - t3}
 
 
 def main() -> None:
@@ -84,21 +98,27 @@ def main() -> None:
     shape = sdfcad_shape()
     print(
         f"meshing the Fig. 1 part over [-1.1, 1.1]^3, median of {runs} runs after a warm-up "
-        f"({os.cpu_count()} CPUs, torch {torch.__version__} with {torch.get_num_threads()} threads)"
+        f"({os.cpu_count()} CPUs, torch {torch.__version__} with {torch.get_num_threads()} threads, "
+        f"load average {', '.join(f'{x:.2f}' for x in os.getloadavg())})"
     )
     for n in RESOLUTIONS:
         seconds, mesh = median_seconds(lambda n=n: polygonize(fig1_part, BOUNDS, n), runs)
+        fast, sparse = median_seconds(lambda n=n: polygonize(fig1_part, BOUNDS, n, sparse=True), runs)
+        same = np.array_equal(mesh.faces, sparse.faces) and np.abs(mesh.vertices - sparse.vertices).max() <= 1e-12
         err = mesh.volume() - EXACT_VOLUME
         split = ", ".join(f"{k} {v:.3f} s" for k, v in stages(n).items())
         print(f"  {n}^3  polygonize {seconds:6.3f} s  volume error {err:+.1e}  {mesh.n_faces} triangles  ({split})")
+        print(
+            f"         sparse=True {fast:6.3f} s  ({seconds / fast:.2f}x; {'the same' if same else 'a DIFFERENT'} mesh)"
+        )
         threads = torch.get_num_threads()
-        if threads > 1:  # robust against busy neighbours: no thread waits for another
+        if threads > 1:  # one worker: robust against busy neighbours, no parallelism either
             torch.set_num_threads(1)
             try:
-                one, _ = median_seconds(lambda n=n: polygonize(fig1_part, BOUNDS, n), runs)
+                one, _ = median_seconds(lambda n=n: polygonize(fig1_part, BOUNDS, n, sparse=True), runs)
             finally:
                 torch.set_num_threads(threads)
-            print(f"         polygonize {one:6.3f} s  with 1 torch thread")
+            print(f"         sparse=True {one:6.3f} s  with 1 torch thread")
         if shape is None:
             print("         sdfcad not installed: no peer figure")
             continue
@@ -106,8 +126,9 @@ def main() -> None:
         peer_err = soup_volume(soup) - EXACT_VOLUME
         print(
             f"         sdfcad     {peer:6.3f} s  volume error {peer_err:+.1e}  {len(soup)} triangles  "
-            f"-> sdfcad / polygonize = {peer / seconds:.2f}x"
+            f"-> sdfcad / polygonize = {peer / seconds:.2f}x (dense), {peer / fast:.2f}x (sparse)"
         )
+    print(f"  load average after the runs: {', '.join(f'{x:.2f}' for x in os.getloadavg())}")
 
 
 if __name__ == "__main__":

@@ -33,6 +33,7 @@ from pyfrep_core.mesh import (
     SPARSE_GUARD,
     SPARSE_STEP,
     _evaluate_grid,
+    _exact_neighbours,
     _normals,
     _project_vertices,
     _sparse_grid,
@@ -90,13 +91,14 @@ def stages(resolution: int, runs: int) -> dict[str, float]:
         t = [time.perf_counter()]
         dense, _, _ = _evaluate_grid(f, axes, torch.float32, "cpu", None)
         t.append(time.perf_counter())
-        values, _, _, mask = _sparse_grid(f, axes, torch.float32, "cpu", SPARSE_STEP, SPARSE_GUARD)
+        values, _, _, mask, evaluated = _sparse_grid(f, axes, torch.float32, "cpu", SPARSE_STEP, SPARSE_GUARD)
         t.append(time.perf_counter())
         marching_cubes(dense, 0.0, gradient_direction="descent")
         t.append(time.perf_counter())
         index_verts, faces, _, _ = marching_cubes(values, 0.0, gradient_direction="descent", mask=mask)
         faces = np.ascontiguousarray(faces[:, ::-1], dtype=np.int64)
         t.append(time.perf_counter())
+        _exact_neighbours(f, values, index_verts, evaluated, SPARSE_STEP, axes, torch.float32, "cpu")
         verts, gradient, _ = _project_vertices(f, values, index_verts, lo, spacing, bounds, "cpu")
         t.append(time.perf_counter())
         normals = _normals(gradient, verts, faces)

@@ -25,7 +25,6 @@ from typing import Any
 
 import numpy as np
 import torch
-from scipy.ndimage import binary_dilation
 from skimage.measure import marching_cubes
 
 from .diff import project_to_surface, value_and_grad
@@ -346,7 +345,7 @@ def _block_corners(a: np.ndarray) -> list[np.ndarray]:
 
 def _sparse_grid(
     f: Callable, axes: list[np.ndarray], dtype: torch.dtype, device: Any, step: int, guard: float
-) -> tuple[np.ndarray, float, float, np.ndarray] | None:
+) -> tuple[np.ndarray, float, float, np.ndarray, np.ndarray] | None:
     """f on the grid of ``axes``, evaluated exactly only in blocks near the surface.
 
     The grid is cut into blocks of ``step``^3 cells; block (a, b, c) owns the nodes
@@ -356,16 +355,18 @@ def _sparse_grid(
     2. A block is *marked* when its corners' signs differ (f > 0 against f <= 0, as marching
        cubes classes them); it is *suspect* when, without that, some corner's first-order
        distance |f| / |grad f| is below ``guard`` block diagonals.
-    3. f is evaluated exactly at every node of the marked blocks, of their 26 neighbours
-       (so the nodes next to any crossing edge, which the root finder's cubic first guess
-       reads, are exact too) and of the suspect blocks.
-    4. Check: every evaluated block that is not marked must have all its exactly known
-       nodes (its own, and those of evaluated neighbours on its closed faces) on its
-       corners' side; one that has not holds surface after all (a surface leaving a marked
-       block, or a small piece inside a suspect one): it is marked, and 3-4 repeat.
+    3. f is evaluated exactly at every node of the marked blocks (their own nodes, and the
+       blocks b + {0, 1}^3 that own the rest of their closed nodes) and of the suspect blocks.
+    4. Check: every block that is not marked must have all its exactly known nodes (its own
+       when evaluated, and those of evaluated blocks on its closed faces) on its corners'
+       side; one that has not holds surface after all (a surface leaving a marked block
+       through a face shows a sign change on that face, whose nodes are known; or a small
+       piece inside a suspect block): it is marked, and 3-4 repeat.
     5. Every other block gets the mean of its corners (their common sign: no crossing).
 
-    Marching cubes then visits the cells of marked blocks only (``mask``).  The mesh equals
+    Marching cubes then visits the cells of marked blocks only (``mask``), and
+    :func:`_exact_neighbours` evaluates the few nodes next to crossing edges that are still
+    fills (the root finder's cubic first guess reads them).  The mesh equals
     the dense grid's whenever no cell of an unmarked, unchecked block has a sign change at
     its nodes.  Surfaces that cross a block face at nodes are followed by step 4, so what
     this assumes is about *isolated* pieces, smaller than a block, that change no coarse
@@ -380,7 +381,8 @@ def _sparse_grid(
 
     Returns None when more than ``SPARSE_MAX_FRACTION`` of the blocks would need exact values
     after step 2 (surface everywhere: a lattice; the dense evaluation is then cheaper),
-    else the grid values, their exact min and max, and the cell mask for marching cubes.
+    else the grid values, their exact min and max, the cell mask for marching cubes and the
+    (bx, by, bz) blocks evaluated exactly.
     """
     device = torch.device(device)
     s = int(step)
@@ -422,7 +424,6 @@ def _sparse_grid(
     evaluated = np.zeros(nb, dtype=bool)
     vmin, vmax = float(fc.min()), float(fc.max())
     per_chunk = max(1, CHUNK_POINTS // s**3)
-    cube = np.ones((3, 3, 3), dtype=bool)
 
     def chunk(idx: np.ndarray) -> tuple[float, float]:
         ix, iy, iz = (np.minimum(idx[:, d, None] * s + local, shape[d] - 1) for d in range(3))
@@ -437,7 +438,7 @@ def _sparse_grid(
 
     while True:
         # 3. exact values in the marked blocks and their neighbours
-        near = (binary_dilation(marked, structure=cube) if marked.any() else marked) | suspect
+        near = _upper_neighbours(marked) | suspect
         if not evaluated.any() and near.mean() > SPARSE_MAX_FRACTION:
             return None  # surface nearly everywhere (a lattice): the dense grid is cheaper
         todo = np.argwhere(near & ~evaluated)
@@ -447,7 +448,7 @@ def _sparse_grid(
                 vmin, vmax = min(vmin, lo), max(vmax, hi)
             evaluated |= near
         # 4. unmarked neighbours must have all their known nodes on their corners' side
-        wrong = near & ~marked & _sides(blocks, evaluated, all_pos)
+        wrong = ~marked & _sides(blocks, evaluated, all_pos)
         if not wrong.any():
             break
         marked |= wrong
@@ -461,7 +462,61 @@ def _sparse_grid(
     mask[1:, 1:, 1:] = cells[: shape[0] - 1, : shape[1] - 1, : shape[2] - 1]
     if padded != shape:
         values = np.ascontiguousarray(values[: shape[0], : shape[1], : shape[2]])
-    return values, vmin, vmax, mask
+    return values, vmin, vmax, mask, evaluated
+
+
+def _upper_neighbours(marked: np.ndarray) -> np.ndarray:
+    """The marked blocks and the blocks b + o, o in {0, 1}^3, that own the rest of their closed nodes."""
+    out = marked.copy()
+    n = marked.shape
+    for o in ((1, 0, 0), (0, 1, 0), (0, 0, 1), (1, 1, 0), (1, 0, 1), (0, 1, 1), (1, 1, 1)):
+        out[o[0] :, o[1] :, o[2] :] |= marked[: n[0] - o[0], : n[1] - o[1], : n[2] - o[2]]
+    return out
+
+
+def _exact_neighbours(
+    f: Callable,
+    values: np.ndarray,
+    index_verts: np.ndarray,
+    evaluated: np.ndarray,
+    step: int,
+    axes: list[np.ndarray],
+    dtype: torch.dtype,
+    device: Any,
+) -> None:
+    """Exact f at the nodes one step beyond each crossing edge (t = -1 and t = 2), where the sparse
+    grid holds a fill value: the root finder's cubic first guess reads them (so the vertices
+    are the dense grid's)."""
+    idx = index_verts.astype(np.float64)
+    base = np.floor(idx).astype(np.int64)
+    moving = idx > base
+    sel = moving.sum(axis=1) == 1
+    axis = np.argmax(moving[sel], axis=1)
+    i0 = base[sel]
+    rows = np.arange(len(i0))
+    size = np.asarray(values.shape)[axis]
+    nodes = []
+    for shift in (-1, 2):
+        node = i0.copy()
+        node[rows, axis] += shift
+        inside = (node[rows, axis] >= 0) & (node[rows, axis] < size)
+        nodes.append(node[inside])
+    nodes = np.concatenate(nodes)
+    block = nodes // step
+    nodes = nodes[~evaluated[block[:, 0], block[:, 1], block[:, 2]]]
+    if len(nodes) == 0:
+        return
+    nodes = np.unique(nodes, axis=0)
+    device = torch.device(device)
+    grid = [torch.as_tensor(a, dtype=dtype, device=device) for a in axes]
+
+    def chunk(lo: int) -> None:
+        part = nodes[lo : lo + CHUNK_POINTS]
+        pts = torch.stack([grid[d][torch.as_tensor(part[:, d], device=device)] for d in range(3)])
+        vals, _, _ = _call(f, pts)
+        values[part[:, 0], part[:, 1], part[:, 2]] = vals.cpu().numpy()
+
+    _map(chunk, list(range(0, len(nodes), CHUNK_POINTS)), device)
 
 
 def _sides(blocks: np.ndarray, evaluated: np.ndarray, positive: np.ndarray) -> np.ndarray:
@@ -586,7 +641,7 @@ def polygonize(
     axes = grid_axes((lo, hi), res)
     grid = _sparse_grid(f, axes, dtype, device, SPARSE_STEP, SPARSE_GUARD) if sparse else None
     if grid is not None:
-        values, vmin, vmax, mask = grid
+        values, vmin, vmax, mask, evaluated = grid
     else:
         values, vmin, vmax = _evaluate_grid(f, axes, dtype, device, None)
         mask = None
@@ -604,6 +659,8 @@ def polygonize(
     origin = np.asarray(lo)
     spacing = np.array([a[1] - a[0] for a in axes])
     if project:
+        if grid is not None:
+            _exact_neighbours(f, values, index_verts, evaluated, SPARSE_STEP, axes, dtype, device)
         verts, gradient, n_failed = _project_vertices(f, values, index_verts, origin, spacing, (lo, hi), device)
         if n_failed:
             warnings.warn(

@@ -395,3 +395,16 @@ def test_coincident_vertices_are_merged_and_the_mesh_stays_closed(tmp_path):
 
     m.save(tmp_path / "sheet.stl")
     assert pv.read(str(tmp_path / "sheet.stl")).n_cells == m.n_faces
+
+
+@pytest.mark.parametrize("resolution, dtype", [((41, 50, 63), torch.float32), (57, torch.float64)])
+def test_sparse_evaluation_on_uneven_blocks_and_in_float64(resolution, dtype, monkeypatch):
+    import pyfrep_core.mesh as mesh_module
+
+    monkeypatch.setattr(mesh_module, "SPARSE_MAX_FRACTION", 1.0)
+    bounds = ((-1.1, -1.0, -1.2), (1.1, 1.05, 1.0))  # the Fig. 1 part cut by the box: an open mesh
+    dense = polygonize(fig1_part, bounds, resolution, dtype=dtype)
+    sparse = polygonize(fig1_part, bounds, resolution, dtype=dtype, sparse=True)
+    assert dense.n_faces > 10_000
+    np.testing.assert_array_equal(sparse.faces, dense.faces)
+    np.testing.assert_allclose(sparse.vertices, dense.vertices, rtol=0, atol=1e-12)

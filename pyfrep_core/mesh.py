@@ -599,6 +599,7 @@ def polygonize(
     dtype: torch.dtype = torch.float32,
     device: str | torch.device = "cpu",
     sparse: bool = False,
+    tol: float | None = None,
 ) -> Mesh:
     """Mesh the surface f = 0 inside ``bounds`` with marching cubes, vertices moved onto f = 0.
 
@@ -617,6 +618,9 @@ def polygonize(
     sparse : evaluate f exactly only near the surface (coarse-to-fine, blocks of
         ``SPARSE_STEP``^3 cells; see :func:`_sparse_grid` for what it assumes); the mesh is
         the dense grid's whenever that assumption holds (tested on the paper's shapes).
+    tol : distance to f = 0 (length units) at which a projected vertex is accepted; None (the
+        default) is the 100-ulp tolerance above.  A display-grade value (e.g. 1e-3 of a cell,
+        as the workbench uses while a slider moves) saves most of the root-finding steps.
 
     Returns
     -------
@@ -669,7 +673,7 @@ def polygonize(
     if project:
         if grid is not None:
             _exact_neighbours(f, values, index_verts, evaluated, SPARSE_STEP, axes, dtype, device)
-        verts, gradient, n_failed = _project_vertices(f, values, index_verts, origin, spacing, (lo, hi), device)
+        verts, gradient, n_failed = _project_vertices(f, values, index_verts, origin, spacing, (lo, hi), device, tol)
         if n_failed:
             warnings.warn(
                 f"polygonize: {n_failed} of {len(verts)} vertices could not be moved onto f = 0; "
@@ -764,16 +768,20 @@ def _project_vertices(
     spacing: np.ndarray,
     bounds: Any,
     device: Any,
+    tol: float | None = None,
 ) -> tuple[np.ndarray, np.ndarray, int]:
     """Vertices on f = 0 (float64), grad f there, and how many could not be moved.
 
     A vertex counts as on the surface when its first-order distance |f| / |grad f| is below
     100 ulp of the largest coordinate (project_to_surface's tolerance; 2.4e-14 in [-1.1, 1.1]^3).
     """
-    accept = _tolerance(*bounds)
+    if tol is not None and not tol > 0:
+        raise ValueError(f"tol must be a positive distance, got {tol!r}")
+    accept = _tolerance(*bounds) if tol is None else max(float(tol), _tolerance(*bounds))
+    step_tol = 1e-11 * float(spacing.min()) if tol is None else accept
     mc_verts = origin + index_verts.astype(np.float64) * spacing
-    # iterate until the next step is below 1e-11 cells; every result is then checked against `accept`
-    verts, done = _roots_on_edges(f, values, index_verts, origin, spacing, 1e-11 * float(spacing.min()), device)
+    # iterate until the next step is below step_tol; every result is then checked against `accept`
+    verts, done = _roots_on_edges(f, values, index_verts, origin, spacing, step_tol, device)
     gradient = np.empty_like(verts)
     if done.any():
         value, gradient[done] = _value_and_grad(f, verts[done], device)

@@ -408,3 +408,19 @@ def test_sparse_evaluation_on_uneven_blocks_and_in_float64(resolution, dtype, mo
     assert dense.n_faces > 10_000
     np.testing.assert_array_equal(sparse.faces, dense.faces)
     np.testing.assert_allclose(sparse.vertices, dense.vertices, rtol=0, atol=1e-12)
+
+
+def test_polygonize_tol_trades_projection_accuracy_for_speed():
+    from pyfrep_core.models import fig1_part
+
+    bounds = ((-1.1,) * 3, (1.1,) * 3)
+    cell = 2.2 / 63 * np.sqrt(3)
+    strict = polygonize(fig1_part, bounds, 64)
+    loose = polygonize(fig1_part, bounds, 64, tol=1e-3 * cell)
+    assert np.array_equal(strict.faces, loose.faces)
+    residual = np.abs(fig1_part(loose.vertices) / np.linalg.norm(loose.gradient, axis=1))
+    assert residual.max() <= 1e-3 * cell  # accepted at the display-grade distance asked for
+    assert np.abs(fig1_part(strict.vertices)).max() < 1e-12
+    assert abs(loose.volume() - strict.volume()) < 1e-4
+    with pytest.raises(ValueError, match="tol"):
+        polygonize(fig1_part, bounds, 16, tol=-1.0)

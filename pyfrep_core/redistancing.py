@@ -29,8 +29,7 @@ Choices measured on the ellipsoid (1, 0.6, 0.4) in [-1.5, 1.5]^3 on 2 CPU cores
   is also ~10x slower than SiLU in the double backward of the eikonal term (measured at
   3 x 128), so SiLU; a softplus written with elementary ops (beta 10): 7.0e-3 vs 8.1e-3 on the
   box after 600 steps, at ~2.5x the time;
-* 3 x 128 SiLU, inputs scaled to [-1, 1], float32: ~6 ms per step with 2048 pool points
-  (supervised, plain backward) and 512 fresh uniform points (eikonal, double backward);
+* 3 x 128 SiLU, inputs scaled to [-1, 1], float32;
 * Adam with a cosine decay: peak lr 1e-2 -> 3.7e-3 after 1500 steps, 3e-2 -> 2.1e-3,
   5e-2 -> 1.5e-3, 1e-1 -> 1.5e-3 (so 5e-2); eikonal weight 0.01 (1e-3: 4.0e-3);
   width 192: no better at equal time; Fourier features (16-32): worse at equal steps;
@@ -39,10 +38,34 @@ Choices measured on the ellipsoid (1, 0.6, 0.4) in [-1.5, 1.5]^3 on 2 CPU cores
   term picks the distance;
 * the exact last-layer least-squares refit (~0.1 s): 3.9e-2 -> 6.7e-3 after 200 steps at lr
   5e-3, 5.9e-3 -> 5.1e-3 after 1000 steps at lr 1e-2;
-* 1000 steps (~6.5 s): 2.0e-3 to 2.7e-3; 1500 steps (~9 s): 1.5e-3.
+* with 2048 pool + 512 eikonal points per step (~6 ms): 1500 steps (~9 s) 1.5e-3.
 
-The box [-0.6, 0.6] x [-0.5, 0.5] x [-0.4, 0.4] is harder (6.3e-3 after 1500 steps): its
-distance has sharp interior ridges (the medial planes) that a smooth network rounds off.
+The box [-0.6, 0.6] x [-0.5, 0.5] x [-0.4, 0.4] is harder: its distance has sharp interior
+ridges (the medial planes, meeting the surface at the edges) that a smooth network rounds
+off, and the error spreads over the whole domain (with all-SiLU units, 600 steps of 2048:
+8.1e-3, 97 % of it outside the box).  Measured on it (one thread, seed 0 unless said):
+
+* units of the last hidden layer, 600 steps of 2048 points: SiLU 8.1e-3, ReLU 6.1e-3 (seeds
+  0-1: 6.1e-3, 7.1e-3), leaky ReLU (slope 0.1) 5.9e-3, |x| 6.8e-3, half SiLU half ReLU
+  6.5e-3, max/min pairs (GroupSort) 7.1e-3; ReLU everywhere 8.2e-3; a 512-wide last layer
+  4.9e-3 at twice the time; 4 x 96 or 2 x 256: worse; first layer weights x2: worse;
+* the error is under-fitting, not sampling: the MAE on the pool equals the grid's; refitting
+  the last layer on 4x the pool, by IRLS for the L1 error, or on exact labels: 6.1e-3 ->
+  6.0e-3, 6.0e-3, 5.7e-3; sampling the pool by current error (hard-example mining): 6.3e-3;
+  L1 or Huber supervised loss: 9.0e-3, 8.9e-3;
+* smaller batches, more steps, at equal time: 2048 x 1200 steps 4.8e-3; 1024 x 1200 (half
+  the time) 4.9e-3; 512 x 2400 4.1e-3; 256 (+ 64 eikonal points) x 4000 3.3e-3 (~2.2 ms a
+  step on one thread; two threads took 2.4x longer on the busy machine, hence ``threads=1``);
+  with leaky ReLU over seeds 0-2: 3.3e-3, 3.4e-3, 3.5e-3 (ReLU 3.3e-3, 4.0e-3, 4.1e-3); lr
+  2e-2: 3.8e-3, 1e-1: 1.2e-2;
+* at this lr and batch a few large-gradient steps can make Adam diverge (8000 steps: loss
+  6.5e4 at step 2500, MAE 0.2); clipping the gradient norm to 0.1 prevents it and helps:
+  3.3e-3 -> 2.3e-3 after 4000 steps (seeds 0-2: 2.3e-3, 2.4e-3, 2.6e-3), 2.1e-3 after 8000;
+  clip 1.0 still diverged, 0.03: 2.6e-3, 3.0e-3.
+
+Defaults from these: 4000 steps of 256 pool + 64 eikonal points, last hidden layer leaky
+ReLU, clip 0.1, one thread (~9 s).  Box 2.3e-3, sphere 9.2e-4 after 1500 steps; ellipsoid
+below 4.6e-3 after 3.5 s and 7.7e-4 after 10 s (scikit-fmm 128^3: 1.5e-3 on its grid).
 
 >>> import torch
 >>> from pyfrep_core import sphere
@@ -56,7 +79,9 @@ True
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+import threading
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -72,7 +97,7 @@ from .progress import Event, Progress, StopFlag
 __all__ = ["RedistancedSDF", "redistance", "load_redistanced"]
 
 FORMAT = "pyfrep-redistanced-1"
-ACTIVATIONS = ("softplus", "silu", "tanh")
+ACTIVATIONS = ("softplus", "silu", "tanh", "relu", "leaky_relu")
 
 
 class _FourierFeatures(nn.Module):
@@ -88,6 +113,10 @@ class _FourierFeatures(nn.Module):
 
 
 def _activation(name: str, beta: float) -> nn.Module:
+    if name == "relu":
+        return nn.ReLU()
+    if name == "leaky_relu":
+        return nn.LeakyReLU(0.1)
     if name == "softplus":
         return nn.Softplus(beta=beta)
     if name == "silu":
@@ -106,7 +135,8 @@ class RedistancedSDF(nn.Module):
     Attributes
     ----------
     f : the defining function (code: not saved; give it again to :func:`load_redistanced`).
-    config : dict of the architecture (bounds, width, depth, activation, beta, fourier ...).
+    config : dict of the architecture (bounds, width, depth, activation, last_activation,
+        beta, fourier ...).
     history : list of float, loss per training step.
     """
 
@@ -117,6 +147,7 @@ class RedistancedSDF(nn.Module):
         width: int = 128,
         depth: int = 3,
         activation: str = "silu",
+        last_activation: str | None = None,
         beta: float = 100.0,
         fourier_features: int = 0,
         fourier_scale: float = 2.0,
@@ -130,8 +161,9 @@ class RedistancedSDF(nn.Module):
         for name, value in (("width", width), ("depth", depth)):
             if isinstance(value, bool) or int(value) != value or value < 1:
                 raise ValueError(f"{name} must be a positive integer, got {value!r}")
-        if activation not in ACTIVATIONS:
-            raise ValueError(f"activation must be one of {ACTIVATIONS}, got {activation!r}")
+        for name, value in (("activation", activation), ("last_activation", last_activation)):
+            if value not in ACTIVATIONS and not (name == "last_activation" and value is None):
+                raise ValueError(f"{name} must be one of {ACTIVATIONS}, got {value!r}")
         if fourier_features < 0:
             raise ValueError(f"fourier_features must be >= 0, got {fourier_features}")
         self.f = f
@@ -140,6 +172,7 @@ class RedistancedSDF(nn.Module):
             "width": int(width),
             "depth": int(depth),
             "activation": activation,
+            "last_activation": last_activation,
             "beta": float(beta),
             "fourier_features": int(fourier_features),
             "fourier_scale": float(fourier_scale),
@@ -158,10 +191,11 @@ class RedistancedSDF(nn.Module):
         if fourier_features:
             layers.append(_FourierFeatures(int(fourier_features), float(fourier_scale), gen))
             d_in = 3 + 2 * int(fourier_features)
-        for _ in range(int(depth)):
+        for i in range(int(depth)):
             lin = nn.Linear(d_in, int(width))
             _init_linear(lin, gen)
-            layers += [lin, _activation(activation, float(beta))]
+            name = last_activation if last_activation is not None and i == int(depth) - 1 else activation
+            layers += [lin, _activation(name, float(beta))]
             d_in = int(width)
         last = nn.Linear(d_in, 1)
         _init_linear(last, gen)
@@ -239,6 +273,7 @@ def load_redistanced(path: str | Path, f: Callable) -> RedistancedSDF:
     if not isinstance(data, dict) or data.get("format") != FORMAT:
         raise ValueError(f"{path} is not a saved redistanced network (format {FORMAT!r} expected)")
     cfg = dict(data["config"])
+    cfg.setdefault("last_activation", None)  # files written before it existed: one activation
     dtype = getattr(torch, cfg.pop("dtype"))
     model = RedistancedSDF(f, cfg.pop("bounds"), dtype=dtype, **cfg)
     model.load_state_dict(data["state_dict"])
@@ -276,22 +311,25 @@ def _training_pool(
 def redistance(
     f: Callable,
     bounds: Any = None,
-    steps: int = 1500,
+    steps: int = 4000,
     loss: str = "eikonal",
     p: float = 8.0,
     supervised: float = 1.0,
     eikonal: float = 0.01,
-    batch: int = 2048,
+    batch: int = 256,
     lr: float = 5e-2,
+    clip_grad: float | None = 0.1,
     width: int = 128,
     depth: int = 3,
     activation: str = "silu",
+    last_activation: str | None = "leaky_relu",
     fourier_features: int = 0,
     surface_resolution: int = 64,
     pool_size: int = 1 << 15,
     refit: bool = True,
     seed: int = 0,
     dtype: torch.dtype = torch.float32,
+    threads: int | None = 1,
     callback: Callable[[Event], Any] | None = None,
     every: int = 10,
     stop: StopFlag | None = None,
@@ -312,7 +350,12 @@ def redistance(
     batch : pool points per step for the supervised term; the eikonal term gets batch / 4
         fresh uniform points (all ``batch`` when unsupervised).
     lr : peak Adam learning rate.
-    width, depth, activation : the MLP g (hidden width, hidden layers, "softplus"/"silu"/"tanh").
+    clip_grad : the gradient (over all weights) is clipped to this norm before each Adam
+        step (None: not clipped).
+    width, depth, activation : the MLP g (hidden width, hidden layers, activation: "silu",
+        "softplus", "tanh", "relu" or "leaky_relu" (slope 0.1)).
+    last_activation : activation of the last hidden layer (None: ``activation``); piecewise
+        linear units there let g follow the distance's creases (medial axis).
     fourier_features : number of random Fourier features of the input (0: none).
     surface_resolution : marching-cubes resolution of the surface samples.
     pool_size : points with known distance (a quarter near the surface, an eighth on it).
@@ -320,6 +363,9 @@ def redistance(
         (linear least squares; the hidden layers are kept): a large gain for no time.
     seed : seeds the pool, the batches and the initial weights.
     dtype : dtype of the network (float32 is faster on a CPU).
+    threads : torch intra-op threads while training (restored after; None: leave as set).
+        Batches of a few hundred points run fastest on one thread: 2 threads took 2.4x
+        longer on a busy 2-core machine.
     callback, every, stop, progress : see :mod:`pyfrep_core.progress`; events have stage
         "redistance", the step and the loss; returning True from the callback stops.
 
@@ -341,11 +387,15 @@ def redistance(
     lo, hi = check_bounds(bounds, 3)
     if loss not in ("eikonal", "p-poisson"):
         raise ValueError(f"loss must be 'eikonal' or 'p-poisson', got {loss!r}")
+    if threads is not None and (isinstance(threads, bool) or int(threads) != threads or threads < 1):
+        raise ValueError(f"threads must be a positive integer or None, got {threads!r}")
     for name, value in (("steps", steps), ("batch", batch), ("pool_size", pool_size)):
         if isinstance(value, bool) or int(value) != value or value < 1:
             raise ValueError(f"{name} must be a positive integer, got {value!r}")
     if not (lr > 0 and math.isfinite(lr)):
         raise ValueError(f"lr must be a positive number, got {lr!r}")
+    if clip_grad is not None and not (clip_grad > 0 and math.isfinite(clip_grad)):
+        raise ValueError(f"clip_grad must be a positive number or None, got {clip_grad!r}")
     if loss == "p-poisson" and not p > 1:
         raise ValueError(f"p must be > 1 for the p-Poisson energy, got {p!r}")
     if supervised < 0 or eikonal < 0 or supervised + eikonal == 0:
@@ -353,7 +403,8 @@ def redistance(
 
     torch_dtype = dtype
     model = RedistancedSDF(
-        f, (lo, hi), width=width, depth=depth, activation=activation, fourier_features=fourier_features,
+        f, (lo, hi), width=width, depth=depth, activation=activation, last_activation=last_activation,
+        fourier_features=fourier_features,
         seed=seed, dtype=torch_dtype,
     )  # fmt: skip
     if supervised > 0:
@@ -374,7 +425,7 @@ def redistance(
     # the cost per point), so it gets a smaller batch of fresh uniform points
     n_pool = batch if supervised > 0 else max(64, batch // 4)
     n_pde = max(64, batch // 4) if supervised > 0 else batch
-    with Progress(int(steps), "redistance", callback, every, stop, progress) as bar:
+    with _intra_op_threads(threads), Progress(int(steps), "redistance", callback, every, stop, progress) as bar:
         for step in range(int(steps)):
             x = _uniform(n_pde, lo_t, hi_t, gen)
             g, dg = value_and_grad(model.signed_network, x, create_graph=True)
@@ -389,6 +440,9 @@ def redistance(
             total = total + fit_weight * fit
             optimizer.zero_grad(set_to_none=True)
             total.backward()
+            if clip_grad is not None:
+                # a few steps with a large gradient otherwise make Adam diverge at this lr
+                torch.nn.utils.clip_grad_norm_(model.parameters(), clip_grad)
             optimizer.step()
             schedule.step()
             value = float(total.detach())
@@ -399,6 +453,34 @@ def redistance(
         _refit_last_layer(model, pool_x, pool_d)
     model.eval()
     return model
+
+
+_THREADS_LOCK = threading.Lock()
+_THREADS_STATE = {"users": 0, "before": 1}
+
+
+@contextmanager
+def _intra_op_threads(n: int | None) -> Iterator[None]:
+    """Run the block with ``torch.set_num_threads(n)``, then restore the setting.
+
+    Trainings may overlap (the workbench trains in a thread): the first one in saves the
+    setting, the last one out restores it.
+    """
+    if n is None:
+        yield
+        return
+    with _THREADS_LOCK:
+        if _THREADS_STATE["users"] == 0:
+            _THREADS_STATE["before"] = torch.get_num_threads()
+        _THREADS_STATE["users"] += 1
+        torch.set_num_threads(int(n))
+    try:
+        yield
+    finally:
+        with _THREADS_LOCK:
+            _THREADS_STATE["users"] -= 1
+            if _THREADS_STATE["users"] == 0:
+                torch.set_num_threads(_THREADS_STATE["before"])
 
 
 def _refit_last_layer(model: RedistancedSDF, x: torch.Tensor, d: torch.Tensor, ridge: float = 1e-8) -> None:

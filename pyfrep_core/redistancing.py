@@ -65,7 +65,7 @@ off, and the error spreads over the whole domain (with all-SiLU units, 600 steps
 
 Defaults from these: 4000 steps of 256 pool + 64 eikonal points, last hidden layer leaky
 ReLU, clip 0.1, one thread (~9 s).  Box 2.3e-3, sphere 9.2e-4 after 1500 steps; ellipsoid
-below 4.6e-3 after 3.5 s and 7.7e-4 after 10 s (scikit-fmm 128^3: 1.5e-3 on its grid).
+below 4.6e-3 after 3.5-4.0 s and 7.7e-4 after 10 s (scikit-fmm 128^3: 1.5e-3 on its grid).
 
 >>> import torch
 >>> from pyfrep_core import sphere

@@ -34,6 +34,7 @@ import numpy as np
 import torch
 
 from ._array import as_tensor, check_finite
+from ._threads import intra_op_threads
 from .model import Model
 from .progress import Event, Progress, StopFlag
 
@@ -493,13 +494,8 @@ def fit(
     def report(total: int, stage: str, every: int = every) -> Progress:
         return _LazyProgress(total, stage, callback, every, stop, progress)
 
-    threads = torch.get_num_threads()
-    if num_threads is not None:
-        torch.set_num_threads(num_threads)
-    try:
+    with intra_op_threads(num_threads):
         return _run_stages(prob, x, stages, init, cfg, gen, report)
-    finally:
-        torch.set_num_threads(threads)
 
 
 def _run_stages(prob: _Problem, x: torch.Tensor, stages: tuple, init: dict, cfg: dict, gen, report) -> FitResult:

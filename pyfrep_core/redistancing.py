@@ -79,9 +79,7 @@ True
 from __future__ import annotations
 
 import math
-import threading
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -89,6 +87,7 @@ import torch
 from torch import nn
 
 from ._array import as_tensor, check_points
+from ._threads import intra_op_threads
 from .diff import value_and_grad
 from .distance import surface_samples, true_distance
 from .model import check_bounds
@@ -425,7 +424,7 @@ def redistance(
     # the cost per point), so it gets a smaller batch of fresh uniform points
     n_pool = batch if supervised > 0 else max(64, batch // 4)
     n_pde = max(64, batch // 4) if supervised > 0 else batch
-    with _intra_op_threads(threads), Progress(int(steps), "redistance", callback, every, stop, progress) as bar:
+    with intra_op_threads(threads), Progress(int(steps), "redistance", callback, every, stop, progress) as bar:
         for step in range(int(steps)):
             x = _uniform(n_pde, lo_t, hi_t, gen)
             g, dg = value_and_grad(model.signed_network, x, create_graph=True)
@@ -453,34 +452,6 @@ def redistance(
         _refit_last_layer(model, pool_x, pool_d)
     model.eval()
     return model
-
-
-_THREADS_LOCK = threading.Lock()
-_THREADS_STATE = {"users": 0, "before": 1}
-
-
-@contextmanager
-def _intra_op_threads(n: int | None) -> Iterator[None]:
-    """Run the block with ``torch.set_num_threads(n)``, then restore the setting.
-
-    Trainings may overlap (the workbench trains in a thread): the first one in saves the
-    setting, the last one out restores it.
-    """
-    if n is None:
-        yield
-        return
-    with _THREADS_LOCK:
-        if _THREADS_STATE["users"] == 0:
-            _THREADS_STATE["before"] = torch.get_num_threads()
-        _THREADS_STATE["users"] += 1
-        torch.set_num_threads(int(n))
-    try:
-        yield
-    finally:
-        with _THREADS_LOCK:
-            _THREADS_STATE["users"] -= 1
-            if _THREADS_STATE["users"] == 0:
-                torch.set_num_threads(_THREADS_STATE["before"])
 
 
 def _refit_last_layer(model: RedistancedSDF, x: torch.Tensor, d: torch.Tensor, ridge: float = 1e-8) -> None:

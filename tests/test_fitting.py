@@ -230,3 +230,33 @@ def test_bad_input_is_a_clear_error(points, kwargs, err, match):
 def test_model_must_declare_parameters():
     with pytest.raises(TypeError, match="Model"):
         fit(lambda x: x[:, 0], np.ones((5, 3)))
+
+
+def test_a_fit_in_a_background_thread_leaves_other_threads_alone():
+    import threading
+
+    from pyfrep_core._threads import intra_op_threads
+
+    before = torch.get_num_threads()
+    inside, release = threading.Event(), threading.Event()
+    seen = {}
+
+    def long_run():  # what the workbench does: fit on a background thread
+        seen["worker before"] = torch.get_num_threads()
+        with intra_op_threads(1):
+            seen["worker"] = torch.get_num_threads()
+            inside.set()
+            release.wait(10)
+        seen["worker after"] = torch.get_num_threads()
+
+    worker = threading.Thread(target=long_run)
+    worker.start()
+    inside.wait(10)
+    assert torch.get_num_threads() == before  # the main thread keeps its threads meanwhile
+    with intra_op_threads(1):  # a second run on the main thread, overlapping the first
+        assert torch.get_num_threads() == 1
+    assert torch.get_num_threads() == before
+    release.set()
+    worker.join(10)
+    assert seen["worker"] == 1
+    assert seen["worker after"] == seen["worker before"]

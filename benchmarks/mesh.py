@@ -29,6 +29,7 @@ import torch
 from skimage.measure import marching_cubes
 
 from pyfrep_core import polygonize
+from pyfrep_core._threads import intra_op_threads
 from pyfrep_core.mesh import (
     SPARSE_GUARD,
     SPARSE_STEP,
@@ -77,7 +78,15 @@ def soup_volume(triangles: np.ndarray) -> float:
 
 
 def stages(resolution: int) -> dict[str, float]:
-    """One run split into grid evaluation (dense and sparse), marching cubes and projection + grad f."""
+    """One run split into grid evaluation (dense and sparse), marching cubes and projection + grad f.
+
+    On one intra-op thread, as polygonize runs them on the CPU.
+    """
+    with intra_op_threads(1):
+        return _stages(resolution)
+
+
+def _stages(resolution: int) -> dict[str, float]:
     axes = grid_axes(BOUNDS, resolution)
     t0 = time.perf_counter()
     _evaluate_grid(fig1_part, axes, torch.float32, "cpu", None)
@@ -111,14 +120,6 @@ def main() -> None:
         print(
             f"         sparse=True {fast:6.3f} s  ({seconds / fast:.2f}x; {'the same' if same else 'a DIFFERENT'} mesh)"
         )
-        threads = torch.get_num_threads()
-        if threads > 1:  # one worker: robust against busy neighbours, no parallelism either
-            torch.set_num_threads(1)
-            try:
-                one, _ = median_seconds(lambda n=n: polygonize(fig1_part, BOUNDS, n, sparse=True), runs)
-            finally:
-                torch.set_num_threads(threads)
-            print(f"         sparse=True {one:6.3f} s  with 1 torch thread")
         if shape is None:
             print("         sdfcad not installed: no peer figure")
             continue

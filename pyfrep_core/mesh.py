@@ -11,8 +11,9 @@ corners first; see :func:`_sparse_grid` for what it assumes) and gives the dense
 on every shape of the test suite, 1.2-1.5x faster on the Fig. 1 part (it falls back to the
 dense grid where the surface is everywhere, as in lattices).  It is the shape panel's mode;
 plain ``polygonize`` stays dense, since a heuristic that can miss a steep bump narrower than
-a block should not decide an export.  Chunks run on a pool of single-threaded workers
-(:func:`_map`), which keeps a busy neighbour core from stalling the evaluation.
+a block should not decide an export.  On the CPU the chunks run one after the other on one
+intra-op thread (:func:`_map`): faster here than two threads, and a busy neighbour core cannot
+stall it.
 
 >>> from pyfrep_core import sphere
 >>> m = polygonize(lambda x: sphere(x, r=1.0), ((-1.2,) * 3, (1.2,) * 3), 64)
@@ -24,10 +25,8 @@ from __future__ import annotations
 
 import math
 import os
-import threading
 import warnings
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -35,6 +34,7 @@ import numpy as np
 import torch
 from skimage.measure import marching_cubes
 
+from ._threads import intra_op_threads
 from .diff import project_to_surface, value_and_grad
 from .model import check_bounds
 
@@ -48,8 +48,7 @@ __all__ = [
     "available_memory",
 ]
 
-# points per call of f on the CPU: the temporaries stay in cache, and torch (whose operations go
-# parallel above 2^15 elements) runs each operation in the calling worker thread (see _map)
+# points per call of f on the CPU: the temporaries stay in cache (see _map)
 CHUNK_POINTS = 1 << 15
 CHUNK_POINTS_GPU = 1 << 22
 ROOT_CHUNK = 1 << 14  # vertices per float64 evaluation while projecting (CPU; chunks run in parallel)
@@ -254,36 +253,18 @@ def _check_memory(resolution: tuple[int, ...], dtype: torch.dtype) -> None:
         )
 
 
-# --------------------------------------------------------------------------- parallel chunked evaluation
-
-_pool: ThreadPoolExecutor | None = None
-_pool_lock = threading.Lock()
-
-
-def _threads(device: torch.device) -> int:
-    """Workers for a CPU evaluation: torch's intra-op thread count, at most the cores (1 on other devices)."""
-    if device.type != "cpu" or threading.current_thread().name.startswith("pyfrep-mesh"):
-        return 1  # an f that meshes inside a worker runs its chunks in that worker: no pool deadlock
-    return max(1, min(torch.get_num_threads(), os.cpu_count() or 1))
+# --------------------------------------------------------------------------- chunked evaluation
 
 
 def _map(fn: Callable, items: list, device: torch.device) -> list:
-    """``[fn(item) for item in items]``, on a pool of single-threaded workers on the CPU.
+    """``[fn(item) for item in items]``: chunks one after the other.
 
-    Why a pool: each chunk is small enough (<= 2^15 points) that torch runs its operations in
-    the calling thread, so workers never wait for each other inside an operation; a worker
-    delayed by a busy core only delays its own chunk while the others take the rest.  torch's
-    own two-thread operations on a shared 2-core machine were seen to stall for 100x their time.
+    On the CPU, polygonize runs them on one intra-op thread (see :func:`polygonize`): chunks of
+    2^15 points stay in cache, and at that size the cost is torch's per-operation dispatch,
+    which holds the GIL, so neither torch's second thread nor a pool of workers made the 2-core
+    machine faster (measured: 0.37 s one thread vs 0.71 s two workers for the 256^3 grid).
     """
-    n = _threads(device)
-    if n == 1 or len(items) < 2:
-        return [fn(item) for item in items]
-    global _pool
-    with _pool_lock:
-        if _pool is None or _pool._max_workers != n:
-            _pool = ThreadPoolExecutor(max_workers=n, thread_name_prefix="pyfrep-mesh")
-        pool = _pool
-    return list(pool.map(fn, items))
+    return [fn(item) for item in items]
 
 
 def _grid_chunks(shape: tuple[int, int, int], max_points: int):
@@ -305,7 +286,7 @@ def _call(f: Callable, pts: torch.Tensor) -> tuple[torch.Tensor, float, float]:
 
     Raises ValueError for a wrong output shape or a non-finite value (naming the point).
     """
-    with torch.no_grad():  # thread-local: set in the worker itself
+    with torch.no_grad():
         vals = f(pts.movedim(0, -1))
         shape = tuple(pts.shape[1:])
         if not isinstance(vals, torch.Tensor) or tuple(vals.shape) != shape:
@@ -567,7 +548,7 @@ def evaluate_grid(
     bounds : ((xmin, ymin, zmin), (xmax, ymax, zmax)); the grid's end points lie on them.
     resolution : samples per axis (>= 2), or one per axis.
     dtype : torch.float32 (fast) or torch.float64.
-    max_points : points per call of f (default 2^15 on the CPU, chunks run on a pool of workers).
+    max_points : points per call of f (default 2^15 on the CPU).
 
     Returns
     -------
@@ -641,6 +622,23 @@ def polygonize(
     >>> abs(m.volume() - 0.98879) < 0.01, m.vertices.dtype, m.faces.shape[1]
     (True, dtype('float64'), 3)
     """
+    cpu = torch.device(device).type == "cpu"
+    # one intra-op thread on the CPU: at 2^15-point chunks torch's dispatch, not arithmetic, is the cost
+    # (the Fig. 1 part at 256^3: 0.91 s on one thread, 1.29 s on two)
+    with intra_op_threads(1 if cpu else None):
+        return _polygonize(f, bounds, resolution, project, dtype, device, sparse, tol)
+
+
+def _polygonize(
+    f: Callable,
+    bounds: Any = None,
+    resolution: int | tuple[int, int, int] = 128,
+    project: bool = True,
+    dtype: torch.dtype = torch.float32,
+    device: str | torch.device = "cpu",
+    sparse: bool = False,
+    tol: float | None = None,
+) -> Mesh:
     if bounds is None:
         bounds = getattr(f, "bounds", None)
         if bounds is None:

@@ -188,14 +188,19 @@ def test_fit_charts_grow_during_the_run_and_loss_goes_down():
     p = fitting_panel(backend="image", n_points=400, seed=3)
     try:
         truth = p.truth["r"]
-        run = p.start(**TINY_FIT)
-        seen = []
-        while run.running:
+        seen = []  # chart size at every redraw: recorded by the chart itself, not by polling a clock
+        redraw = p.loss_chart.refresh
+
+        def recording_refresh(*args, **kwargs):
             seen.append(p.loss_chart.n_points)
-            time.sleep(0.01)
+            return redraw(*args, **kwargs)
+
+        p.loss_chart.refresh = recording_refresh
+        p.start(**TINY_FIT)
         result = p.wait()
         final = p.loss_chart.n_points
-        assert any(0 < s < final for s in seen)  # points arrived while it ran
+        assert len(seen) >= 3 and seen == sorted(seen)  # redrawn again and again while it ran, growing
+        assert any(0 < s < final for s in seen)  # points arrived before the end
         assert p.param_chart.n_points == p.loss_chart.n_points
         assert set(p.loss_chart.series) == {"evolution", "sgd", "polish"}
         first = p.loss_chart.series["evolution"][1][0]
@@ -287,12 +292,17 @@ def test_redistance_panel_trains_charts_and_hands_the_network_to_the_slices():
     p = redistance_panel(models={"ball": ball_model}, settings=tiny, slice_resolution=32, distance_resolution=24)
     s = slice_panel(models={"ball": ball_model}, resolution=24, distance_resolution=24, threaded=False)
     p.on_trained.append(s.set_network)
-    run = p.start(every=1)
-    seen = []
-    while run.running:
+    seen = []  # chart size at every redraw, recorded by the chart itself (no polling of a clock)
+    redraw = p.loss_chart.refresh
+
+    def recording_refresh(*args, **kwargs):
         seen.append(p.loss_chart.n_points)
-        time.sleep(0.01)
+        return redraw(*args, **kwargs)
+
+    p.loss_chart.refresh = recording_refresh
+    p.start(every=1)
     network = p.wait()
+    assert len(seen) >= 3 and seen == sorted(seen)  # redrawn again and again while training, growing
     assert any(0 < n < p.loss_chart.n_points for n in seen)  # the chart grew while training
     assert p.loss_chart.n_points >= 10 and "trained in" in p.status.value and "stopped" not in p.status.value
     assert bytes(p.slices.value).startswith(b"\x89PNG")

@@ -17,6 +17,10 @@ def test_readme_blocks_run_in_order(tmp_path, monkeypatch):
     ns: dict = {}
     for index, block in enumerate(BLOCKS):
         exec(compile(block, f"README.md python block {index}", "exec"), ns)
+        if index == 0:  # the Fig. 1 program meshed at 128^3: the count and volume its comment prints
+            assert ns["mesh"].n_faces == 104_656
+            assert ns["mesh"].volume() == pytest.approx(0.9868, abs=5e-5)
+            assert abs(ns["mesh"].volume() - 0.98879) < 3e-3
     # the values the README's comments promise
     assert ns["mesh"].n_vertices > 0 and (tmp_path / "sphere.ply").exists()
     assert np.abs(ns["c"].H - 2.0).max() < 1e-9 and np.abs(ns["c"].K - 4.0).max() < 1e-9

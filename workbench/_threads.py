@@ -133,6 +133,15 @@ class LatestWorker:
         if self.main.has_loop:
             done.wait(timeout=30.0)
 
+    def run_now(self, job: Any) -> None:
+        """Compute ``job`` in the calling thread and deliver it there (no event loop: tests, scripts)."""
+        try:
+            result = self.compute(job)
+        except Exception as err:  # shown in the panel's status line, never lost
+            self.deliver(job, None, err)
+            return
+        self.deliver(job, result, None)
+
     def idle(self) -> bool:
         with self._cond:
             return self._pending is None and not self._busy

@@ -215,11 +215,8 @@ class SlicePanel(widgets.VBox):
         }
         if self.threaded:
             self.worker.submit(job)
-            return
-        try:
-            self._computed(job, self._compute(job), None)
-        except Exception as err:
-            self._computed(job, None, err)
+        else:
+            self.worker.run_now(job)
 
     def wait(self, timeout: float = 300.0) -> None:
         self.worker.wait(timeout)

@@ -26,6 +26,7 @@ Conventions shared by every function here:
 
 from __future__ import annotations
 
+import contextlib
 import math
 import threading
 import warnings
@@ -36,6 +37,7 @@ from typing import Any, NamedTuple
 import torch
 
 from ._array import as_tensor, check_finite, check_points
+from .compiled import first_order
 
 __all__ = [
     "value_and_grad",
@@ -155,9 +157,12 @@ def _vjp(y: torch.Tensor, xr: torch.Tensor, cotangent: torch.Tensor | None = Non
 
 def _derivatives(f: Callable, x: torch.Tensor, order: int, create_graph: bool) -> tuple[torch.Tensor, ...]:
     """f, grad f and (order 2) the Hessian at x (N, d): 1 backward pass + d for the Hessian rows."""
+    # one backward pass and no graph kept: a compiled model may differentiate its fused kernel
+    once = first_order() if order == 1 and not create_graph else contextlib.nullcontext()
     with torch.enable_grad():
         xr = _leaf(x, create_graph)
-        y = _evaluate(f, xr)
+        with once:
+            y = _evaluate(f, xr)
         g = _vjp(y, xr, create_graph=create_graph or order > 1)
         if order == 1:
             out = (y, g)

@@ -23,6 +23,7 @@ stall it.
 
 from __future__ import annotations
 
+import functools
 import math
 import os
 import warnings
@@ -267,6 +268,15 @@ def _map(fn: Callable, items: list, device: torch.device) -> list:
     return [fn(item) for item in items]
 
 
+def _chunk_points(f: Callable, default: int) -> int:
+    """Points per call: ``default``, or the ``chunk_points`` that f (or the model a
+    ``functools.partial`` binds) declares (a compiled model's fused loop wants larger chunks)."""
+    while isinstance(f, functools.partial):
+        f = f.func
+    hint = getattr(f, "chunk_points", None)
+    return max(default, int(hint)) if isinstance(hint, int) and hint > 0 else default
+
+
 def _grid_chunks(shape: tuple[int, int, int], max_points: int):
     """Blocks (i, kx, j, ky) of whole z-rows with at most ``max_points`` points (at least one row)."""
     nx, ny, nz = shape
@@ -307,7 +317,7 @@ def _evaluate_grid(
     """f on the grid of ``axes`` plus its min and max; raises on a non-finite value."""
     device = torch.device(device)
     if max_points is None:
-        max_points = CHUNK_POINTS if device.type == "cpu" else CHUNK_POINTS_GPU
+        max_points = _chunk_points(f, CHUNK_POINTS if device.type == "cpu" else CHUNK_POINTS_GPU)
     shape = tuple(len(a) for a in axes)
     out = np.empty(shape, dtype=np.float32 if dtype == torch.float32 else np.float64)
     gx, gy, gz = (torch.as_tensor(a, dtype=dtype, device=device) for a in axes)
@@ -412,7 +422,7 @@ def _sparse_grid(
     local = np.arange(s)
     evaluated = np.zeros(nb, dtype=bool)
     vmin, vmax = float(fc.min()), float(fc.max())
-    per_chunk = max(1, CHUNK_POINTS // s**3)
+    per_chunk = max(1, _chunk_points(f, CHUNK_POINTS) // s**3)
 
     def chunk(idx: np.ndarray) -> tuple[float, float]:
         ix, iy, iz = (np.minimum(idx[:, d, None] * s + local, shape[d] - 1) for d in range(3))
@@ -740,13 +750,14 @@ def _f64(f: Callable, x: np.ndarray, device: Any) -> np.ndarray:
     """f at points x (N, 3) in float64, forward only, in chunks (in parallel on the CPU)."""
     out = np.empty(len(x))
     device = torch.device(device)
+    size = _chunk_points(f, ROOT_CHUNK)
 
     def chunk(s: int) -> None:
-        t = torch.as_tensor(x[s : s + ROOT_CHUNK], dtype=torch.float64, device=device)
+        t = torch.as_tensor(x[s : s + size], dtype=torch.float64, device=device)
         with torch.no_grad():
-            out[s : s + ROOT_CHUNK] = f(t).cpu().numpy()
+            out[s : s + size] = f(t).cpu().numpy()
 
-    _map(chunk, list(range(0, len(x), ROOT_CHUNK)), device)
+    _map(chunk, list(range(0, len(x), size)), device)
     return out
 
 
@@ -754,7 +765,9 @@ def _value_and_grad(f: Callable, x: np.ndarray, device: Any) -> tuple[np.ndarray
     """f and grad f at points x (N, 3) in float64 (numpy out; diff's chunked, parallel passes)."""
     if len(x) == 0:
         return np.zeros(0), np.zeros((0, 3))
-    value, gradient = value_and_grad(f, torch.as_tensor(x, dtype=torch.float64, device=device))
+    t = torch.as_tensor(x, dtype=torch.float64, device=device)
+    hint = _chunk_points(f, 0)  # a compiled model's chunk size, else diff's default
+    value, gradient = value_and_grad(f, t, chunk=hint or None)
     return value.cpu().numpy(), gradient.cpu().numpy()
 
 

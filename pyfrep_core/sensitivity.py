@@ -24,6 +24,7 @@ import torch
 import torch.autograd.forward_ad as fwad
 
 from ._array import as_tensor, check_finite, check_points
+from .compiled import first_order
 from .diff import CHUNK, value_and_grad
 from .model import Model
 
@@ -136,7 +137,7 @@ def _df_dp(model: Model, x: torch.Tensor, name: str, values: dict[str, Any]) -> 
     n = x.shape[0]
     p = torch.full((n,), float(values[name]), dtype=x.dtype, device=x.device, requires_grad=True)
     try:
-        with torch.enable_grad():
+        with torch.enable_grad(), first_order():  # one backward pass: a compiled model's kernel may take it
             f = model.fn(x, **{**values, name: p})
         if isinstance(f, torch.Tensor) and f.shape == (n,) and f.requires_grad:
             (g,) = torch.autograd.grad(f.sum(), p, allow_unused=True)

@@ -1,0 +1,251 @@
+"""Fused evaluation: a model run through ``torch.compile``, one loop over the points instead of one per operation.
+
+Eager torch evaluates f(x) operation by operation: each of the Fig. 1 part's ~80 operations
+(R-functions, squares, square roots) reads and writes the whole chunk of points, and at
+2^15 points per chunk torch's per-operation dispatch is the cost.  ``torch.compile``
+(Inductor) fuses the program into one generated C++ loop on the CPU (Triton on CUDA): the
+Fig. 1 part on a 128^3 grid takes 10 ms on one core against 50 ms eager.  That is what the
+workbench's live re-meshing runs on (``benchmarks/slider.py``).
+
+The price is the compilation: a few seconds per variant the first time it is met (float32
+grid values, float64 vertex values, float64 value and gradient, per-point df/dp), cached on
+disk by Inductor for later processes.  :func:`warm_up` pays it ahead of time; the shape
+panel does so on a background thread and re-meshes eagerly meanwhile.
+
+What goes through the compiled kernel, and what stays eager
+-----------------------------------------------------------
+- values (no gradient wanted): compiled;
+- first derivatives taken by the kernel's own passes (:func:`pyfrep_core.value_and_grad`,
+  ``grad``, :func:`pyfrep_core.sensitivity.param_derivative`): compiled, forward and backward;
+- anything else that differentiates (Hessians and curvature, ``create_graph``, a user's own
+  ``torch.autograd.grad``, ``torch.func`` transforms, forward-mode AD), batched (B,)
+  parameters, and fewer than two points: the eager model, so every result stays correct
+  (torch.compile cannot differentiate its kernels twice);
+- a model that fails to compile (an operation Inductor lacks, no C++ compiler): eager,
+  with one RuntimeWarning naming the error.
+
+Values agree with the eager model to rounding (fusion reorders operations: about 4 ulp in
+float32, 1e-15 relative in float64).
+"""
+
+from __future__ import annotations
+
+import functools
+import threading
+import warnings
+from collections.abc import Iterator
+from contextlib import contextmanager
+from typing import Any
+
+import torch
+import torch.autograd.forward_ad as fwad
+
+from ._threads import intra_op_threads
+from .model import Model
+
+__all__ = ["compiled", "first_order", "warm_up"]
+
+CHUNK_POINTS = 1 << 18  # points per call: a fused loop keeps no temporaries, so larger chunks only save calls
+RECOMPILE_LIMIT = 64  # variants per model: dtypes x (values, grad f, df/dp for each parameter)
+
+_state = threading.local()
+
+
+@contextmanager
+def first_order() -> Iterator[None]:
+    """Declare that the block takes first derivatives only (one backward pass, no graph kept).
+
+    The kernel's first-derivative passes wrap their forward evaluation in it; inside, a
+    compiled model differentiates through its compiled kernel.  Outside, a compiled model
+    evaluated with gradients on falls back to eager, which any order of derivative can use.
+
+    >>> with first_order():
+    ...     _first_order_active()
+    True
+    >>> _first_order_active()
+    False
+    """
+    before = getattr(_state, "first_order", False)
+    _state.first_order = True
+    try:
+        yield
+    finally:
+        _state.first_order = before
+
+
+def _first_order_active() -> bool:
+    return getattr(_state, "first_order", False)
+
+
+def _needs_eager(x: torch.Tensor, params: dict[str, Any]) -> bool:
+    """True where the compiled kernel must not be used (see the module docstring)."""
+    if x.shape[:-1].numel() < 2 or torch._C._are_functorch_transforms_active():
+        return True
+    tensors = [x, *(v for v in params.values() if isinstance(v, torch.Tensor))]
+    if fwad._current_level >= 0 and any(fwad.unpack_dual(t).tangent is not None for t in tensors):
+        return True
+    if torch.is_grad_enabled() and any(t.requires_grad for t in tensors) and not _first_order_active():
+        return True
+    return False
+
+
+class CompiledModel(Model):
+    """A :class:`~pyfrep_core.model.Model` whose values and first derivatives run fused.
+
+    Built by :func:`compiled`; same parameters, bounds, dimension and name as the eager
+    model (``.eager``).  ``chunk_points`` tells chunked evaluators (polygonize) the chunk
+    size that suits it.
+    """
+
+    chunk_points = CHUNK_POINTS
+
+    def __init__(self, eager: Model, dynamic: bool = True):
+        self.eager = eager
+        self.failure: BaseException | None = None
+        self._kernel = torch.compile(eager.fn, dynamic=dynamic)
+        self._lock = threading.Lock()
+
+        @functools.wraps(eager.fn)
+        def fn(x: torch.Tensor, **params: Any) -> torch.Tensor:
+            return self._evaluate(x, params)
+
+        super().__init__(fn, eager.params, bounds=eager.bounds, dim=eager.dim)
+
+    def __repr__(self) -> str:
+        return "<compiled " + repr(self.eager)[1:]
+
+    @staticmethod
+    def _threads(x: torch.Tensor) -> int | None:
+        return 1 if x.device.type == "cpu" else None
+
+    def _arguments(self, flat: torch.Tensor, params: dict[str, Any]) -> dict[str, torch.Tensor] | None:
+        """Parameters as tensors for the kernel: scalars (0-d), or one value per point (N,); None otherwise."""
+        out = {}
+        n = flat.shape[0]
+        for name, v in params.items():
+            if isinstance(v, torch.Tensor):
+                if v.ndim == 0 or (v.ndim == 1 and v.shape[0] == n):
+                    out[name] = v.to(dtype=flat.dtype, device=flat.device)
+                else:
+                    return None  # a (B, 1, ...) batch: eager broadcasting
+            elif isinstance(v, (int, float)) and not isinstance(v, bool):
+                out[name] = torch.tensor(float(v), dtype=flat.dtype, device=flat.device)
+            else:
+                return None
+        return out
+
+    def _evaluate(self, x: torch.Tensor, params: dict[str, Any]) -> torch.Tensor:
+        per_point = any(isinstance(v, torch.Tensor) and v.ndim == 1 for v in params.values())
+        if self.failure is not None or _needs_eager(x, params) or (per_point and x.ndim != 2):
+            return self.eager.fn(x, **params)
+        # one layout, component-first (x[:, 0] contiguous, so the fused loop vectorizes): strides are compiled in
+        flat = x.reshape(-1, x.shape[-1])
+        if flat.stride() != (1, flat.shape[0]):
+            flat = flat.t().contiguous().t()
+        if not flat.requires_grad:
+            flat = flat.detach()  # not a view: guards would otherwise see the grid's 4-D base
+        args = self._arguments(flat, params)
+        if args is None:
+            return self.eager.fn(x, **params)
+        try:
+            # the thread count is part of what a kernel is compiled for: one, whoever calls
+            with torch._dynamo.config.patch(recompile_limit=RECOMPILE_LIMIT), intra_op_threads(self._threads(flat)):
+                out = self._kernel(flat, **args)
+        except Exception as error:  # noqa: BLE001  (any compiler failure: the eager model decides)
+            out = self.eager.fn(x, **params)  # a genuine error in the model raises here
+            with self._lock:
+                if self.failure is None:
+                    self.failure = error
+                    warnings.warn(
+                        f"compiled({self.__name__}): torch.compile failed ({type(error).__name__}: "
+                        f"{str(error).splitlines()[0] if str(error) else ''}); evaluating eagerly",
+                        RuntimeWarning,
+                        stacklevel=3,
+                    )
+            return out
+        if not isinstance(out, torch.Tensor) or out.shape != flat.shape[:1]:
+            return self.eager.fn(x, **params)  # not one value per point: let the caller's check name it
+        return out.reshape(x.shape[:-1])
+
+
+def compiled(model: Model, dynamic: bool = True) -> CompiledModel:
+    """The same model, evaluated through ``torch.compile`` (fused; see the module docstring).
+
+    Parameters
+    ----------
+    model : a :class:`~pyfrep_core.model.Model` (declared with ``@model``).
+    dynamic : compile for any number of points (True), so chunks of every size share one kernel.
+
+    Returns
+    -------
+    CompiledModel: call it like the model (numpy or torch points, parameter overrides).
+    Compilation happens on first use of each variant; :func:`warm_up` does it ahead.
+
+    Raises
+    ------
+    TypeError if ``model`` is not a Model.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from pyfrep_core.models import fig1_part
+    >>> fast = compiled(fig1_part)
+    >>> x = np.array([[0.55, 0.55, 0.55], [0.0, 0.0, 0.0], [0.9, 0.0, 0.1]])
+    >>> bool(np.allclose(fast(x, r=0.4), fig1_part(x, r=0.4), rtol=1e-12, atol=1e-12))
+    True
+    """
+    if isinstance(model, CompiledModel):
+        return model
+    if not isinstance(model, Model):
+        raise TypeError(f"compiled() takes a pyfrep_core Model (declared with @model), got {type(model).__name__}")
+    return CompiledModel(model, dynamic=dynamic)
+
+
+def warm_up(
+    model: CompiledModel,
+    params: dict[str, Any] | None = None,
+    dtypes: tuple[torch.dtype, ...] = (torch.float32, torch.float64),
+    gradients: bool = True,
+    sensitivities: tuple[str, ...] | bool = True,
+    device: str | torch.device = "cpu",
+) -> float:
+    """Compile the variants a re-mesh uses, ahead of time; returns the seconds it took.
+
+    Values in each of ``dtypes``; with ``gradients``, value and grad f in each; with
+    ``sensitivities`` (True: every parameter), per-point df/dp in float64.  Points are
+    drawn inside the model's bounds.  The kernel then runs at once on first real use.
+
+    Examples
+    --------
+    >>> from pyfrep_core.models import fig1_part
+    >>> fast = compiled(fig1_part)
+    >>> seconds = warm_up(fast, dtypes=(torch.float64,), sensitivities=False)  # compiles, once per process
+    >>> warm_up(fast, dtypes=(torch.float64,), sensitivities=False) < seconds  # compiled already
+    True
+    """
+    import time
+
+    from .diff import value_and_grad
+    from .sensitivity import param_derivative
+
+    if not isinstance(model, CompiledModel):
+        raise TypeError(f"warm_up takes a CompiledModel (see compiled()), got {type(model).__name__}")
+    start = time.perf_counter()
+    values = model.check(**(params or {}))
+    lo, hi = model.bounds if model.bounds is not None else ((-1.0,) * model.dim, (1.0,) * model.dim)
+    generator = torch.Generator().manual_seed(0)
+    unit = torch.rand(64, model.dim, generator=generator, dtype=torch.float64)
+    points = torch.as_tensor(lo, dtype=torch.float64) + unit * (
+        torch.as_tensor(hi, dtype=torch.float64) - torch.as_tensor(lo, dtype=torch.float64)
+    )
+    names = model.names if sensitivities is True else list(sensitivities or ())
+    for dtype in dtypes:
+        x = points.to(dtype=dtype, device=device)
+        with torch.no_grad():
+            model(x, **values)
+        if gradients:
+            value_and_grad(lambda p: model(p, **values), x)
+        if dtype == torch.float64:
+            for name in names:
+                param_derivative(model, x, name, values)
+    return time.perf_counter() - start

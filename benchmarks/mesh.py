@@ -2,7 +2,9 @@
 
 ``polygonize`` = float32 grid evaluation (dense, or ``sparse=True``: exactly only in blocks
 near the surface, the same mesh) + scikit-image marching cubes + every vertex moved onto
-f = 0 in float64 + normals from grad f.  Evaluation runs in chunks of 2^15 points on a pool
+f = 0 in float64 + normals from grad f.  ``compiled``: the same, with the model evaluated
+through ``pyfrep_core.compiled`` (torch.compile's fused kernels; their one-off compilation
+time is printed apart).  Evaluation runs in chunks of 2^15 points on a pool
 of single-threaded workers (torch's own 2-thread operations stall when a core is busy).
 The peer is ``sdfcad`` (a PyPI fork of
 fogleman/sdf) on the same shape written with its own operations, with the same voxel size,
@@ -30,6 +32,7 @@ from skimage.measure import marching_cubes
 
 from pyfrep_core import polygonize
 from pyfrep_core._threads import intra_op_threads
+from pyfrep_core.compiled import compiled, warm_up
 from pyfrep_core.mesh import (
     SPARSE_GUARD,
     SPARSE_STEP,
@@ -110,6 +113,8 @@ def main() -> None:
         f"({os.cpu_count()} CPUs, torch {torch.__version__} with {torch.get_num_threads()} threads, "
         f"load average {', '.join(f'{x:.2f}' for x in os.getloadavg())})"
     )
+    fast_model = compiled(fig1_part)
+    warm = warm_up(fast_model, sensitivities=False)
     for n in RESOLUTIONS:
         seconds, mesh = median_seconds(lambda n=n: polygonize(fig1_part, BOUNDS, n), runs)
         fast, sparse = median_seconds(lambda n=n: polygonize(fig1_part, BOUNDS, n, sparse=True), runs)
@@ -120,6 +125,17 @@ def main() -> None:
         print(
             f"         sparse=True {fast:6.3f} s  ({seconds / fast:.2f}x; {'the same' if same else 'a DIFFERENT'} mesh)"
         )
+        fused, fused_mesh = median_seconds(lambda n=n: polygonize(fast_model, BOUNDS, n), runs)
+        gap = (
+            np.abs(fused_mesh.vertices - mesh.vertices).max()
+            if np.array_equal(fused_mesh.faces, mesh.faces)
+            else float("inf")
+        )
+        agree = f"same faces, vertices within {gap:.0e}" if np.isfinite(gap) else "OTHER faces"
+        print(
+            f"         compiled   {fused:6.3f} s  ({seconds / fused:.2f}x; compiled(fig1_part), kernels compiled "
+            f"in {warm:.1f} s once; {agree})"
+        )
         if shape is None:
             print("         sdfcad not installed: no peer figure")
             continue
@@ -127,7 +143,8 @@ def main() -> None:
         peer_err = soup_volume(soup) - EXACT_VOLUME
         print(
             f"         sdfcad     {peer:6.3f} s  volume error {peer_err:+.1e}  {len(soup)} triangles  "
-            f"-> sdfcad / polygonize = {peer / seconds:.2f}x (dense), {peer / fast:.2f}x (sparse)"
+            f"-> sdfcad / polygonize = {peer / seconds:.2f}x (dense), {peer / fast:.2f}x (sparse), "
+            f"{peer / fused:.2f}x (compiled)"
         )
     print(f"  load average after the runs: {', '.join(f'{x:.2f}' for x in os.getloadavg())}")
 

@@ -62,6 +62,38 @@ def test_slider_remeshes_in_place_and_updates_status(panel):
     assert s.step == pytest.approx((p.upper - p.lower) / 200)
 
 
+def test_compiled_evaluation_gives_the_eager_mesh_and_colours(panel):
+    """After warm_up the panel meshes with the compiled model: same triangles, vertices and sensitivity."""
+    panel.sliders["r"].value = 0.42
+    eager_mesh, eager_v = panel.mesh, panel.scalars
+    assert "(eager)" in panel.status.value and panel.evaluator() is fig1_part
+    seconds = panel.warm_up()
+    assert seconds > 0 and panel.warm_up() == 0.0  # compiled once
+    assert panel.evaluator() is not fig1_part and panel.evaluator().eager is fig1_part
+    panel.sliders["r"].value = 0.43
+    panel.sliders["r"].value = 0.42
+    assert "(compiled)" in panel.status.value
+    np.testing.assert_array_equal(panel.mesh.faces, eager_mesh.faces)
+    # most vertices agree to rounding; the few next to the part's creases are placed by Newton steps
+    # along grad f, whose landing point along the crease follows the rounding (both are on f = 0)
+    gap = np.abs(panel.mesh.vertices - eager_mesh.vertices).max(axis=1)
+    assert np.mean(gap < 1e-12) > 0.99 and gap.max() < 1e-6
+    # the sensitivity too, except on the creases themselves, where df/dp jumps (a sub-gradient)
+    same = np.isclose(panel.scalars, eager_v, rtol=1e-9, atol=1e-9)
+    assert same.mean() > 0.99, same.mean()
+    assert np.abs(fig1_part(panel.mesh.vertices, r=0.42)).max() < 1e-9
+
+
+def test_a_panel_without_compilation_stays_eager():
+    p = shape_panel(fig1_part, resolution=24, backend="image", threaded=False, compiled=False)
+    try:
+        assert p.warm_up() == 0.0 and p.evaluator() is fig1_part
+        p.sliders["r"].value = 0.3
+        assert "(eager)" in p.status.value
+    finally:
+        p.view.close()
+
+
 def test_sensitivity_to_cylinder_radius_lives_on_the_cylinder_walls(panel):
     r = 0.6
     panel.sliders["r"].value = r

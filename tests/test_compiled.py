@@ -1,0 +1,477 @@
+"""compiled(model): the torch.compile kernel against the eager model and closed forms, and its eager fallbacks.
+
+Every variant (dtype, values or first derivatives) compiles once per process (dynamo keeps
+the kernels on the model function's code object), so the compiled models are module-scoped
+fixtures and the tests share their points and parameter values.  Each test also records
+whether the compiled kernel ran (``kernel_calls``): agreement with eager proves nothing if
+both results came from the eager model.
+"""
+
+import functools
+import threading
+import warnings
+from contextlib import contextmanager
+
+import numpy as np
+import pytest
+import torch
+from torch._dynamo.utils import counters
+
+from pyfrep_core import Param, curvatures, grad, hessian, model, param_grad, polygonize, sphere, value_and_grad
+from pyfrep_core.compiled import CompiledModel, compiled, first_order, warm_up
+from pyfrep_core.models import ellipse, fig1_part, microstructure, pawn, schwarz_d
+from pyfrep_core.sensitivity import param_derivative
+
+EPS32 = float(torch.finfo(torch.float32).eps)
+
+# (model, parameter values other than the defaults, magnitude of its largest intermediate term)
+# The magnitude sets the float32 tolerance: fusion reorders operations, so values differ from
+# eager by a few ulp of the terms that are combined.  That is the value itself (order 1) except
+# for the pawn, whose collar ellipsoid (c = 0.07) reaches -(1.65 / 0.07)^2 ~ -560 in its box and
+# is cancelled by the R-unions down to values of order 1, and the microstructure, whose slabs
+# sin(scale x) take arguments up to 7 * 10.5 ~ 75 (an ulp of the argument moves the sine as much).
+CASES = {
+    "fig1_part": (fig1_part, {"r": 0.35}, 1.0),
+    "schwarz_d": (schwarz_d, {"c": 0.3}, 1.0),
+    "pawn": (pawn, {"head_radius": 0.35, "neck_radius": 0.2, "base_radius": 0.5, "collar_radius": 0.3}, 600.0),
+    "microstructure": (microstructure, {"scale1": 7.0, "scale2": 4.0, "freq1": 0.6, "freq2": 0.9}, 75.0),
+    "ellipse": (ellipse, {"a": 4.0, "b": 2.5}, 1.0),
+}
+
+
+@model(bounds=((-2.0,) * 3, (2.0,) * 3), r=Param(1.0, 0.5, 1.5), cx=Param(0.0, -0.5, 0.5))
+def ball(x, r, cx):
+    """r^2 - |x - (cx, 0, 0)|^2: gradient -2 (x - c), df/dr = 2 r, df/dcx = 2 (x0 - cx), curvature 1 / r."""
+    return sphere(x, center=(cx, 0.0, 0.0), r=r)
+
+
+BALL = {"r": 1.25, "cx": 0.3}
+BALL_CENTER = np.array([0.3, 0.0, 0.0])
+
+
+def in_bounds(m, n, seed):
+    lo, hi = (np.asarray(b) for b in m.bounds)
+    return lo + np.random.default_rng(seed).random((n, m.dim)) * (hi - lo)
+
+
+@contextmanager
+def kernel_calls(fast):
+    """Record the number of points of every call that reaches ``fast``'s compiled kernel."""
+    sizes = []
+    kernel = fast._kernel
+
+    def counting(flat, **params):
+        sizes.append(flat.shape[0])
+        return kernel(flat, **params)
+
+    fast._kernel = counting
+    try:
+        yield sizes
+    finally:
+        fast._kernel = kernel
+
+
+def compiled_graphs():
+    """Graphs dynamo has compiled in this process (moves by one at each compile or recompile)."""
+    return counters["stats"]["unique_graphs"]
+
+
+def edge_counts(faces):
+    edges = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    return np.unique(edges, axis=0, return_counts=True)[1]
+
+
+@pytest.fixture(scope="module")
+def fast():
+    """name -> compiled model, for every model of CASES, and the test ball."""
+    out = {name: compiled(m) for name, (m, _, _) in CASES.items()}
+    out["ball"] = compiled(ball)
+    return out
+
+
+# ----------------------------------------------------------------------------- values
+
+
+@pytest.mark.parametrize("name", list(CASES))
+def test_values_agree_with_eager_in_float64_numpy_and_torch(fast, name):
+    m, params, _ = CASES[name]
+    x = in_bounds(m, 3000, seed=1)
+    with kernel_calls(fast[name]) as sizes:
+        got = fast[name](x, **params)
+        got_torch = fast[name](torch.as_tensor(x), **params)
+    assert sizes == [3000, 3000] and fast[name].failure is None  # the kernel computed both
+    want = m(x, **params)
+    assert isinstance(got, np.ndarray) and got.dtype == want.dtype == np.float64 and got.shape == (3000,)
+    np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12)
+    assert isinstance(got_torch, torch.Tensor) and got_torch.dtype == torch.float64
+    np.testing.assert_array_equal(got_torch.numpy(), got)
+    # the parameters reach the kernel: the defaults give other values
+    assert np.abs(fast[name](x) - got).max() > 1e-3
+
+
+@pytest.mark.parametrize("name", list(CASES))
+def test_values_agree_with_eager_in_float32_to_a_few_ulp(fast, name):
+    m, params, magnitude = CASES[name]
+    x = torch.as_tensor(in_bounds(m, 3000, seed=2), dtype=torch.float32)
+    with kernel_calls(fast[name]) as sizes:
+        got = fast[name](x, **params)
+    assert sizes == [3000]
+    want = m(x, **params)
+    assert got.dtype == torch.float32 and got.shape == (3000,)
+    scale = torch.maximum(want.abs(), torch.tensor(magnitude))
+    assert ((got - want).abs() <= 8 * EPS32 * scale).all(), (got - want).abs().max()
+
+
+def test_point_layouts_batch_shapes_and_parameter_kinds_give_the_eager_values(fast):
+    """The kernel takes (N, 3) component-first; every other layout is brought to it and reshaped back."""
+    f = fast["fig1_part"]
+    grid = torch.as_tensor(in_bounds(fig1_part, 6 * 7 * 8, seed=3)).reshape(6, 7, 8, 3)
+    layouts = {
+        "grid (6, 7, 8, 3)": grid,
+        "component-first view": grid.movedim(-1, 0).contiguous().movedim(0, -1),  # as polygonize passes
+        "transposed (N, 3)": grid.reshape(-1, 3).t().contiguous().t(),
+        "strided rows": grid.reshape(-1, 3)[::2],
+    }
+    for label, x in layouts.items():
+        for r in (0.3, torch.tensor(0.3, dtype=torch.float64), torch.tensor(0.3, dtype=torch.float32)):
+            with kernel_calls(f) as sizes:
+                got = f(x, r=r)
+            assert sizes == [x.shape[:-1].numel()], label
+            assert got.shape == x.shape[:-1], label
+            # the kernel takes parameters in the points' dtype (a float32 0.3 widened to float64)
+            want = fig1_part(x, r=torch.as_tensor(r, dtype=torch.float64)).numpy()
+            np.testing.assert_allclose(got.numpy(), want, rtol=1e-12, atol=1e-12, err_msg=label)
+
+
+# ----------------------------------------------------------------------------- first derivatives
+
+
+@pytest.mark.parametrize("name", ["fig1_part", "schwarz_d", "ellipse"])  # pawn, microstructure: 5-7 s more to compile
+def test_value_and_grad_through_the_kernel_equals_eager(fast, name):
+    m, params, _ = CASES[name]
+    x = in_bounds(m, 3000, seed=4)
+    with kernel_calls(fast[name]) as sizes:
+        value, gradient = value_and_grad(functools.partial(fast[name], **params), x)
+        only_gradient = grad(functools.partial(fast[name], **params), torch.as_tensor(x))
+    assert sizes == [3000, 3000] and fast[name].failure is None
+    want_value, want_gradient = value_and_grad(functools.partial(m, **params), x)
+    np.testing.assert_allclose(value, want_value, rtol=1e-12, atol=1e-12)
+    scale = np.abs(want_gradient).max()
+    np.testing.assert_allclose(gradient, want_gradient, rtol=1e-12, atol=1e-12 * scale)
+    assert isinstance(only_gradient, torch.Tensor) and only_gradient.dtype == torch.float64
+    np.testing.assert_array_equal(only_gradient.numpy(), gradient)
+
+
+def test_param_derivative_through_the_kernel_equals_eager(fast):
+    x = in_bounds(fig1_part, 3000, seed=5)
+    for name in fig1_part.names:
+        with kernel_calls(fast["fig1_part"]) as sizes:
+            got = param_derivative(fast["fig1_part"], x, name, {"r": 0.35})
+        assert sizes == [3000], name
+        want = param_derivative(fig1_part, x, name, {"r": 0.35})
+        assert np.abs(want).max() > 0.1  # the cylinders move with r
+        np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12 * np.abs(want).max(), err_msg=name)
+
+
+def test_sphere_value_and_gradient_match_the_closed_form(fast):
+    f = fast["ball"]
+    x = in_bounds(ball, 2000, seed=6)
+    d = x - BALL_CENTER
+    with kernel_calls(f) as sizes:
+        value, gradient = value_and_grad(functools.partial(f, **BALL), x)
+    assert sizes == [2000]
+    np.testing.assert_allclose(value, BALL["r"] ** 2 - (d * d).sum(1), rtol=0, atol=1e-14)
+    np.testing.assert_allclose(gradient, -2 * d, rtol=0, atol=1e-14)
+
+
+def test_sphere_parameter_derivatives_match_the_closed_forms(fast):
+    f = fast["ball"]
+    x = in_bounds(ball, 2000, seed=6)
+    with kernel_calls(f) as sizes:
+        df_dr = param_derivative(f, x, "r", BALL)
+    assert sizes == [2000]
+    np.testing.assert_allclose(df_dr, np.full(2000, 2 * BALL["r"]), rtol=0, atol=1e-14)
+    # a per-point centre component makes sphere() broadcast (N, N), not one value per point:
+    # the kernel's result is refused and param_derivative's forward mode (eager) gives the derivative
+    with kernel_calls(f) as tried:
+        df_dcx = param_derivative(f, x, "cx", BALL)
+    assert tried == [2000]
+    np.testing.assert_allclose(df_dcx, 2 * (x[:, 0] - BALL["cx"]), rtol=0, atol=1e-14)
+
+
+def test_first_order_parameter_gradients_of_a_loss_through_the_kernel(fast):
+    """Scalar parameters that require grad (a fit's loss), differentiated by the kernel's backward."""
+    f = fast["ball"]
+    x = torch.as_tensor(in_bounds(ball, 2000, seed=7))
+    r = torch.tensor(BALL["r"], dtype=torch.float64, requires_grad=True)
+    cx = torch.tensor(BALL["cx"], dtype=torch.float64, requires_grad=True)
+    with kernel_calls(f) as sizes, first_order():
+        loss = f(x, r=r, cx=cx).sum()
+    assert sizes == [2000]
+    loss.backward()
+    assert r.grad.item() == pytest.approx(2000 * 2 * BALL["r"], rel=1e-13)
+    assert cx.grad.item() == pytest.approx(2 * (x[:, 0] - BALL["cx"]).sum().item(), rel=1e-12, abs=1e-10)
+
+
+# ----------------------------------------------------------------------------- eager fallbacks
+
+
+def test_hessian_and_curvatures_fall_back_to_eager_and_are_exact(fast):
+    f = functools.partial(fast["ball"], **BALL)
+    x = in_bounds(ball, 500, seed=8)
+    with kernel_calls(fast["ball"]) as sizes:
+        h = hessian(f, x)
+        directions = np.random.default_rng(9).normal(size=(500, 3))
+        on_sphere = BALL_CENTER + BALL["r"] * directions / np.linalg.norm(directions, axis=1, keepdims=True)
+        c = curvatures(f, on_sphere)
+    assert sizes == []  # second derivatives: never the kernel (it cannot be differentiated twice)
+    np.testing.assert_allclose(h, np.broadcast_to(-2 * np.eye(3), (500, 3, 3)), rtol=0, atol=1e-13)
+    for k in (c.H, c.kmin, c.kmax):
+        np.testing.assert_allclose(k, 1 / BALL["r"], rtol=1e-12)
+    np.testing.assert_allclose(c.K, 1 / BALL["r"] ** 2, rtol=1e-12)
+
+
+def test_create_graph_and_a_users_own_second_derivative_fall_back_to_eager(fast):
+    f = fast["ball"]
+    x = torch.as_tensor(in_bounds(ball, 400, seed=10)).requires_grad_(True)
+    d = (x - torch.as_tensor(BALL_CENTER)).detach()
+    with kernel_calls(f) as sizes:
+        # value_and_grad keeping the graph: |grad f|^2 = 4 |x - c|^2 has gradient 8 (x - c)
+        _, g = value_and_grad(functools.partial(f, **BALL), x, create_graph=True)
+        (dloss,) = torch.autograd.grad((g * g).sum(), x)
+        # a user's own autograd with create_graph: the Laplacian of r^2 - |x - c|^2 is -6
+        y = f(x, **BALL)
+        (g2,) = torch.autograd.grad(y.sum(), x, create_graph=True)
+        laplacian = sum(torch.autograd.grad(g2[:, i].sum(), x, retain_graph=True)[0][:, i] for i in range(3))
+    assert sizes == []
+    torch.testing.assert_close(g.detach(), -2 * d, rtol=0, atol=1e-14)
+    torch.testing.assert_close(dloss, 8 * d, rtol=0, atol=1e-13)
+    torch.testing.assert_close(g2.detach(), -2 * d, rtol=0, atol=1e-14)
+    torch.testing.assert_close(laplacian, torch.full((400,), -6.0, dtype=torch.float64), rtol=0, atol=1e-14)
+
+
+def test_param_grad_by_torch_func_jvp_falls_back_to_eager(fast):
+    f = fast["ball"]
+    x = in_bounds(ball, 400, seed=11)
+    with kernel_calls(f) as sizes:
+        got = param_grad(f, x, BALL)
+    assert sizes == []  # forward mode inside torch.func: eager
+    np.testing.assert_allclose(got["r"], np.full(400, 2 * BALL["r"]), rtol=0, atol=1e-14)
+    np.testing.assert_allclose(got["cx"], 2 * (x[:, 0] - BALL["cx"]), rtol=0, atol=1e-14)
+    want = param_grad(fig1_part, x, {"r": 0.35})
+    np.testing.assert_allclose(param_grad(fast["fig1_part"], x, {"r": 0.35})["r"], want["r"], rtol=0, atol=0)
+
+
+def test_batched_parameters_and_a_single_point_fall_back_to_eager(fast):
+    f = fast["ball"]
+    x = in_bounds(ball, 300, seed=12)
+    radii = torch.tensor([0.6, 1.0, 1.4, 0.8])
+    with kernel_calls(f) as sizes:
+        batch = f(torch.as_tensor(x), r=radii, cx=0.3)
+        one = f(x[:1], **BALL)
+        bare = f(torch.as_tensor(x[0]), **BALL)
+    assert sizes == []
+    d2 = ((x - BALL_CENTER) ** 2).sum(1)
+    assert batch.shape == (4, 300)
+    np.testing.assert_allclose(batch.numpy(), radii.double().numpy()[:, None] ** 2 - d2, rtol=0, atol=1e-14)
+    assert isinstance(one, np.ndarray) and one.shape == (1,)
+    np.testing.assert_allclose(one, BALL["r"] ** 2 - d2[:1], rtol=0, atol=1e-14)
+    assert bare.shape == () and bare.item() == pytest.approx(BALL["r"] ** 2 - d2[0], abs=1e-14)
+    # a batch of the fig1 part: each row is the eager model at that radius
+    got = fast["fig1_part"](x, r=np.array([0.3, 0.5]))
+    np.testing.assert_allclose(got, fig1_part(x, r=np.array([0.3, 0.5])), rtol=0, atol=0)
+    np.testing.assert_allclose(got[1], fig1_part(x, r=0.5), rtol=1e-12, atol=1e-12)
+
+
+# ----------------------------------------------------------------------------- compile failure, model errors
+
+
+@torch.library.custom_op("pyfrep_test_compiled::opaque_copy", mutates_args=())
+def opaque_copy(x: torch.Tensor) -> torch.Tensor:
+    """A custom operator without a fake (meta) implementation: dynamo cannot trace it, eager runs it."""
+    return x.clone()
+
+
+opaque_copy.register_autograd(lambda ctx, cotangent: cotangent)  # the identity's derivative
+
+
+@model(bounds=((-2.0,) * 3, (2.0,) * 3), r=Param(1.0, 0.5, 1.5))
+def opaque_ball(x, r):
+    return sphere(opaque_copy(x), r=r)
+
+
+@model(bounds=((-2.0,) * 3, (2.0,) * 3), r=Param(1.0, 0.5, 1.5))
+def checked_ball(x, r):
+    if bool((x.abs() > 2.0).any()):  # data-dependent: dynamo breaks the graph here and runs it in Python
+        raise ValueError("checked_ball: a point lies outside [-2, 2]^3")
+    return sphere(x, r=r)
+
+
+def test_a_model_that_fails_to_compile_warns_once_and_evaluates_eagerly():
+    fast_opaque = compiled(opaque_ball)
+    x = in_bounds(opaque_ball, 200, seed=13)
+    want = (1.1**2 - (x * x).sum(1), -2 * x)
+    with pytest.warns(RuntimeWarning, match=r"compiled\(opaque_ball\): torch\.compile failed") as record:
+        got = fast_opaque(x, r=1.1)
+    assert len([w for w in record if issubclass(w.category, RuntimeWarning)]) == 1
+    assert fast_opaque.failure is not None
+    np.testing.assert_allclose(got, want[0], rtol=0, atol=1e-14)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # once: later calls, values or gradients, stay silent
+        again = fast_opaque(torch.as_tensor(x), r=1.1)
+        value, gradient = value_and_grad(functools.partial(fast_opaque, r=1.1), x)
+    np.testing.assert_allclose(again.numpy(), want[0], rtol=0, atol=1e-14)
+    np.testing.assert_allclose(value, want[0], rtol=0, atol=1e-14)
+    np.testing.assert_allclose(gradient, want[1], rtol=0, atol=1e-14)
+
+
+def test_a_kernel_that_raises_is_replaced_by_the_eager_model_with_one_warning():
+    fast_ball = compiled(ball)
+
+    def broken(flat, **params):
+        raise RuntimeError("no C++ compiler found")
+
+    fast_ball._kernel = broken
+    x = in_bounds(ball, 100, seed=14)
+    with pytest.warns(RuntimeWarning, match=r"compiled\(ball\).*RuntimeError: no C\+\+ compiler found"):
+        got = fast_ball(x, **BALL)
+    np.testing.assert_allclose(got, BALL["r"] ** 2 - ((x - BALL_CENTER) ** 2).sum(1), rtol=0, atol=1e-14)
+    assert isinstance(fast_ball.failure, RuntimeError)
+
+
+def test_a_genuine_error_of_the_model_propagates_and_is_not_taken_for_a_compile_failure():
+    fast_checked = compiled(checked_ball)
+    x = in_bounds(checked_ball, 100, seed=15)
+    outside = x.copy()
+    outside[17] = (0.0, 2.5, 0.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        with kernel_calls(fast_checked) as tried, pytest.raises(ValueError, match="a point lies outside"):
+            fast_checked(outside)
+        assert tried == [100]  # raised inside the kernel, then again by the eager model
+        assert fast_checked.failure is None
+        with kernel_calls(fast_checked) as sizes:
+            got = fast_checked(x, r=0.9)  # still compiled afterwards
+    assert sizes == [100] and fast_checked.failure is None
+    np.testing.assert_allclose(got, 0.81 - (x * x).sum(1), rtol=0, atol=1e-14)
+
+
+# ----------------------------------------------------------------------------- meshing, warm-up, threads
+
+
+@pytest.fixture(scope="module")
+def warmed(fast):
+    """fig1_part's compiled model after warm_up at its default parameters."""
+    warm_up(fast["fig1_part"])
+    return fast["fig1_part"]
+
+
+def test_polygonize_through_the_kernel_gives_the_eager_mesh(warmed):
+    with kernel_calls(warmed) as sizes:
+        mesh = polygonize(functools.partial(warmed, r=0.4), fig1_part.bounds, 64)
+    assert max(sizes) == min(64**3, warmed.chunk_points)  # the grid in the compiled model's chunk size
+    want = polygonize(functools.partial(fig1_part, r=0.4), fig1_part.bounds, 64)
+    assert mesh.n_faces > 10_000
+    np.testing.assert_array_equal(mesh.faces, want.faces)
+    np.testing.assert_allclose(mesh.vertices, want.vertices, rtol=0, atol=1e-12)
+    # normals are -grad f: on the part's sharp edges grad f jumps, and a vertex there takes one
+    # side's gradient or the other's by the last bit of its position; elsewhere they agree
+    differ = np.abs(mesh.normals - want.normals).max(axis=1) > 1e-9
+    assert differ.mean() < 0.01, differ.sum()
+    assert (edge_counts(mesh.faces) == 2).all()  # closed: every edge in exactly two faces
+    np.testing.assert_allclose(fig1_part(mesh.vertices, r=0.4), 0.0, atol=1e-12)
+
+
+def test_the_graph_counter_moves_on_a_compile_and_on_a_recompile():
+    """What the next test relies on: ``compiled_graphs`` counts a new function and a new dtype of it."""
+
+    @model(bounds=((-1.0,) * 3, (1.0,) * 3), h=Param(0.0, -0.5, 0.5))
+    def plane(x, h):
+        return x[..., 2] - h
+
+    fast_plane = compiled(plane)
+    before = compiled_graphs()
+    fast_plane(torch.zeros(5, 3, dtype=torch.float64))
+    assert compiled_graphs() == before + 1
+    fast_plane(torch.zeros(5, 3, dtype=torch.float32))
+    assert compiled_graphs() == before + 2
+
+
+def test_polygonize_and_param_derivative_compile_nothing_after_warm_up(warmed):
+    before = compiled_graphs()
+    with kernel_calls(warmed) as sizes:
+        mesh = polygonize(functools.partial(warmed, r=0.3), fig1_part.bounds, 48)  # other r, other grid size
+        df_dr = param_derivative(warmed, mesh.vertices, "r", {"r": 0.3})
+        first_777 = param_derivative(warmed, mesh.vertices[:777], "r", {"r": 0.3})
+    assert len(sizes) >= 4  # grid, root finding, gradient, df/dr: all through the kernel
+    assert compiled_graphs() == before, "a variant was compiled after warm_up"
+    np.testing.assert_allclose(df_dr, param_derivative(fig1_part, mesh.vertices, "r", {"r": 0.3}), rtol=1e-12)
+    np.testing.assert_array_equal(first_777, df_dr[:777])  # another number of points, no recompile
+
+
+def test_two_threads_share_a_compiled_model(fast):
+    """One thread takes gradients through the kernel while the other differentiates twice eagerly."""
+    f, ball_fast = fast["fig1_part"], fast["ball"]
+    x = in_bounds(fig1_part, 4000, seed=16)
+    radii = (0.3, 0.45, 0.6)
+    want = {r: value_and_grad(functools.partial(fig1_part, r=r), x) for r in radii}
+    xb = torch.as_tensor(in_bounds(ball, 500, seed=17))
+    start = threading.Barrier(2)
+    results, errors = {}, []
+
+    def values_and_gradients():
+        try:
+            start.wait()
+            for r in radii:
+                results[r] = (f(x, r=r), value_and_grad(functools.partial(f, r=r), x)[1])
+        except Exception as error:  # reported below with the thread's traceback
+            errors.append(error)
+
+    def second_derivatives():
+        try:
+            start.wait()
+            for _ in range(5):
+                xr = xb.clone().requires_grad_(True)
+                (g,) = torch.autograd.grad(ball_fast(xr, **BALL).sum(), xr, create_graph=True)
+                (row,) = torch.autograd.grad(g[:, 0].sum(), xr)
+                results.setdefault("rows", []).append(row)
+        except Exception as error:
+            errors.append(error)
+
+    threads = [threading.Thread(target=values_and_gradients), threading.Thread(target=second_derivatives)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(timeout=120)
+    assert not errors, errors
+    for r in radii:
+        np.testing.assert_allclose(results[r][0], want[r][0], rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(results[r][1], want[r][1], rtol=1e-12, atol=1e-12 * np.abs(want[r][1]).max())
+    expected_row = torch.zeros_like(xb)
+    expected_row[:, 0] = -2.0
+    assert len(results["rows"]) == 5
+    for row in results["rows"]:
+        torch.testing.assert_close(row, expected_row, rtol=0, atol=0)
+
+
+# ----------------------------------------------------------------------------- construction
+
+
+def test_compiled_takes_only_models_is_idempotent_and_says_what_it_is(fast):
+    with pytest.raises(TypeError, match="function"):
+        compiled(lambda x: x[..., 0])
+    with pytest.raises(TypeError, match="CompiledModel.*Model"):
+        warm_up(fig1_part)
+    f = fast["fig1_part"]
+    assert isinstance(f, CompiledModel) and compiled(f) is f and f.eager is fig1_part
+    assert repr(f).startswith("<compiled model fig1_part(r=0.5")
+    assert (f.__name__, f.names, f.bounds, f.dim, f.defaults()) == (
+        "fig1_part",
+        fig1_part.names,
+        fig1_part.bounds,
+        3,
+        fig1_part.defaults(),
+    )
+    assert fast["ellipse"].dim == 2 and fast["ellipse"].bounds == ellipse.bounds
+    with pytest.raises(ValueError, match="outside its range"):
+        f.check(r=2.0)

@@ -486,26 +486,27 @@ def _exact_neighbours(
     """Exact f at the nodes one step beyond each crossing edge (t = -1 and t = 2), where the sparse
     grid holds a fill value: the root finder's cubic first guess reads them (so the vertices
     are the dense grid's)."""
-    idx = index_verts.astype(np.float64)
-    base = np.floor(idx).astype(np.int64)
-    moving = idx > base
-    sel = moving.sum(axis=1) == 1
-    axis = np.argmax(moving[sel], axis=1)
-    i0 = base[sel]
-    rows = np.arange(len(i0))
+    _, axis, i0, _ = _grid_edges(index_verts)
+    coord = i0.reshape(-1)[np.arange(len(i0)) * 3 + axis]
     size = np.asarray(values.shape)[axis]
+    stride = np.array([values.shape[1] * values.shape[2], values.shape[2], 1])[axis]
+    lin = _flat_index(i0, values.shape)
+    # the node's block (flat index into `evaluated`), and the node's place in it along the axis
+    block_of = i0 // step
+    block = _flat_index(block_of, evaluated.shape)
+    block_stride = np.array([evaluated.shape[1] * evaluated.shape[2], evaluated.shape[2], 1])[axis]
+    offset = coord - block_of.reshape(-1)[np.arange(len(i0)) * 3 + axis] * step
+    known = evaluated.reshape(-1)
     nodes = []
     for shift in (-1, 2):
-        node = i0.copy()
-        node[rows, axis] += shift
-        inside = (node[rows, axis] >= 0) & (node[rows, axis] < size)
-        nodes.append(node[inside])
-    nodes = np.concatenate(nodes)
-    block = nodes // step
-    nodes = nodes[~evaluated[block[:, 0], block[:, 1], block[:, 2]]]
+        inside = (coord + shift >= 0) & (coord + shift < size)
+        moved_block = block + (offset + shift) // step * block_stride  # (off the grid where not inside)
+        k = np.flatnonzero(inside & ~known.take(moved_block, mode="clip"))
+        nodes.append(lin[k] + shift * stride[k])
+    nodes = np.unique(np.concatenate(nodes))  # C order: the nodes sorted as (i, j, k)
     if len(nodes) == 0:
         return
-    nodes = np.unique(nodes, axis=0)
+    nodes = np.stack(np.unravel_index(nodes, values.shape), axis=1)
     device = torch.device(device)
     grid = [torch.as_tensor(a, dtype=dtype, device=device) for a in axes]
 
@@ -528,18 +529,26 @@ def _sides(blocks: np.ndarray, evaluated: np.ndarray, positive: np.ndarray) -> n
     idx = np.argwhere(evaluated)
     if len(idx) == 0:
         return np.zeros(nb, dtype=bool)
-    pos = blocks[idx[:, 0], idx[:, 1], idx[:, 2]] > 0  # (K, s, s, s)
+    s = blocks.shape[3:]
+    pos = (blocks[idx[:, 0], idx[:, 1], idx[:, 2]] > 0).reshape(len(idx), -1)  # (K, s^3)
+    # part o of a block: its nodes with local index 0 along the axes where o is 1; per part,
+    # how many nodes are positive (one matrix product; the counts are exact in float32)
+    local = np.indices(s).reshape(3, -1)
+    part = np.array([np.all((local == 0) | (np.array(o)[:, None] == 0), axis=0) for o in _OFFSETS]).T
+    count = pos.astype(np.float32) @ part.astype(np.float32)  # (K, 8)
+    some_pos = np.zeros((*(n + 1 for n in nb), len(_OFFSETS)), dtype=bool)
+    some_neg = np.zeros_like(some_pos)
+    some_pos[idx[:, 0], idx[:, 1], idx[:, 2]] = count > 0
+    some_neg[idx[:, 0], idx[:, 1], idx[:, 2]] = count < part.sum(axis=0)
     any_pos = np.zeros(nb, dtype=bool)
     any_neg = np.zeros(nb, dtype=bool)
-    for o in ((0, 0, 0), (1, 0, 0), (0, 1, 0), (0, 0, 1), (1, 1, 0), (1, 0, 1), (0, 1, 1), (1, 1, 1)):
-        part = pos[(slice(None), *(0 if d else slice(None) for d in o))].reshape(len(idx), -1)
-        p = np.zeros(tuple(n + 1 for n in nb), dtype=bool)
-        q = np.zeros_like(p)
-        p[idx[:, 0], idx[:, 1], idx[:, 2]] = part.any(axis=1)
-        q[idx[:, 0], idx[:, 1], idx[:, 2]] = ~part.all(axis=1)
-        any_pos |= p[o[0] : o[0] + nb[0], o[1] : o[1] + nb[1], o[2] : o[2] + nb[2]]
-        any_neg |= q[o[0] : o[0] + nb[0], o[1] : o[1] + nb[1], o[2] : o[2] + nb[2]]
+    for k, o in enumerate(_OFFSETS):  # block b's closed nodes include part o of block b + o
+        any_pos |= some_pos[o[0] : o[0] + nb[0], o[1] : o[1] + nb[1], o[2] : o[2] + nb[2], k]
+        any_neg |= some_neg[o[0] : o[0] + nb[0], o[1] : o[1] + nb[1], o[2] : o[2] + nb[2], k]
     return np.where(positive, any_neg, any_pos)
+
+
+_OFFSETS = ((0, 0, 0), (1, 0, 0), (0, 1, 0), (0, 0, 1), (1, 1, 0), (1, 0, 1), (0, 1, 1), (1, 1, 1))
 
 
 def evaluate_grid(
@@ -714,8 +723,14 @@ def _collapse_coincident(
     """
     if len(faces) == 0:
         return verts, faces, gradient
-    corners = [verts[faces[:, k]] for k in range(3)]
-    pairs = [faces[(corners[i] == corners[j]).all(axis=1)][:, [i, j]] for i, j in ((0, 1), (1, 2), (2, 0))]
+    # coincident vertices have equal keys (a hash of the coordinates' bits, -0.0 as 0.0): only the
+    # faces with two equal keys (few or none) are compared coordinate by coordinate
+    bits = (verts + 0.0).view(np.int64)
+    key = bits[:, 0] * _HASH[0] ^ bits[:, 1] * _HASH[1] ^ bits[:, 2]  # wraps around: a hash
+    k = [key[faces[:, i]] for i in range(3)]
+    suspect = faces[(k[0] == k[1]) | (k[1] == k[2]) | (k[2] == k[0])]
+    corners = [verts[suspect[:, i]] for i in range(3)]
+    pairs = [suspect[(corners[i] == corners[j]).all(axis=1)][:, [i, j]] for i, j in ((0, 1), (1, 2), (2, 0))]
     pairs = np.concatenate(pairs)
     if len(pairs) == 0:
         return verts, faces, gradient
@@ -739,6 +754,20 @@ def _collapse_coincident(
     index = np.full(len(verts), -1, dtype=np.int64)
     index[used] = np.arange(len(used))
     return verts[used], index[merged], gradient[used]
+
+
+_HASH = (6364136223846793005, 1442695040888963407)  # odd 64-bit multipliers (Knuth's MMIX LCG)
+
+
+def _records(a: np.ndarray) -> np.ndarray:
+    """A C-contiguous (N, k) array as N records of k values: whole rows gathered or scattered as one item
+    (fancy indexing row by row costs 2-3x more)."""
+    return a.view(np.dtype((np.void, a.dtype.itemsize * a.shape[1])))[:, 0]
+
+
+def _row_norms(x: np.ndarray) -> np.ndarray:
+    """|x| of each row of (N, 3) x: ``np.linalg.norm(x, axis=1)`` (same sums in the same order), column-wise."""
+    return np.sqrt(x[:, 0] * x[:, 0] + x[:, 1] * x[:, 1] + x[:, 2] * x[:, 2])
 
 
 def _tolerance(lo: Any, hi: Any) -> float:
@@ -790,17 +819,19 @@ def _project_vertices(
         raise ValueError(f"tol must be a positive distance, got {tol!r}")
     accept = _tolerance(*bounds) if tol is None else max(float(tol), _tolerance(*bounds))
     step_tol = 1e-11 * float(spacing.min()) if tol is None else accept
-    mc_verts = origin + index_verts.astype(np.float64) * spacing
     # iterate until the next step is below step_tol; every result is then checked against `accept`
     verts, done = _roots_on_edges(f, values, index_verts, origin, spacing, step_tol, device)
     gradient = np.empty_like(verts)
-    if done.any():
-        value, gradient[done] = _value_and_grad(f, verts[done], device)
+    on_edge = np.flatnonzero(done)
+    if len(on_edge):
+        points = verts if len(on_edge) == len(verts) else _records(verts)[on_edge].view(np.float64).reshape(-1, 3)
+        value, grad_on_edge = _value_and_grad(f, points, device)
+        _records(gradient)[on_edge] = _records(np.ascontiguousarray(grad_on_edge))
         # an edge whose float32 grid signs were wrong in float64 has no root: check the residual
         # |f| / |grad f| (|grad f| at least the median, so that f = 0 where grad f vanishes passes)
-        length = np.linalg.norm(gradient[done], axis=1)
+        length = _row_norms(grad_on_edge)
         distance = np.abs(value) / np.maximum(length, np.median(length))
-        done[np.flatnonzero(done)[~(distance <= accept)]] = False
+        done[on_edge[~(distance <= accept)]] = False
     rest = np.flatnonzero(~done)
     n_failed = 0
     if len(rest):
@@ -815,9 +846,50 @@ def _project_vertices(
         failed = rest[~ok]
         n_failed = len(failed)
         if n_failed:  # back to where marching cubes put them
-            verts[failed] = mc_verts[failed]
+            verts[failed] = origin + index_verts[failed].astype(np.float64) * spacing
             gradient[failed] = _value_and_grad(f, verts[failed], device)[1]
     return verts, gradient, n_failed
+
+
+# the bits of a marching-cubes vertex's coordinates that lie between grid nodes (x: 1, y: 2,
+# z: 4) -> the axis of its grid edge; -1: not strictly inside one edge (on a node, or Lewiner's
+# vertex inside a cell)
+_EDGE_AXIS = np.array([-1, 0, 1, -1, 2, -1, -1, -1], dtype=np.int8)
+
+
+def _grid_edges(index_verts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The marching-cubes vertices strictly inside one grid edge, and their edges.
+
+    Returns their rows (K,), the edge's axis (K,), its grid node at t = 0 (K, 3) int64 (the
+    other end is one step along the axis) and the vertex's position t in (0, 1) on it (K,)
+    float64 (exact: t = index - floor(index) in the index's own float type).
+    """
+    index_verts = np.ascontiguousarray(index_verts)
+    base = np.floor(index_verts)
+    between = (index_verts != base).view(np.uint8)
+    axis = _EDGE_AXIS[between[:, 0] | (between[:, 1] << 1) | (between[:, 2] << 2)]
+    rows = np.flatnonzero(axis >= 0)
+    axis = axis[rows].astype(np.intp)
+    node = np.take(base, rows, axis=0)
+    along = np.arange(len(rows)) * 3 + axis
+    t = np.take(index_verts, rows, axis=0).reshape(-1)[along] - node.reshape(-1)[along]
+    return rows, axis, node.astype(np.int64), t.astype(np.float64)
+
+
+def _grid_points(index: np.ndarray, origin: np.ndarray, spacing: np.ndarray) -> np.ndarray:
+    """World positions ``origin + index * spacing`` (N, 3) float64 of grid indices (N, 3), column by
+    column (the same operations; a broadcast over rows of three runs 3x slower)."""
+    points = np.array(index, dtype=np.float64, order="C")  # a copy
+    for d in range(3):
+        column = points[:, d]
+        column *= spacing[d]
+        column += origin[d]
+    return points
+
+
+def _flat_index(node: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+    """Index in ``values.reshape(-1)`` (C order) of grid nodes (K, 3)."""
+    return (node[:, 0] * shape[1] + node[:, 1]) * shape[2] + node[:, 2]
 
 
 def _roots_on_edges(
@@ -845,104 +917,152 @@ def _roots_on_edges(
     Returns the vertices (V, 3) in world coordinates (the current estimate, or marching
     cubes' position, where not done) and the (V,) bool ``done``.
     """
-    idx = index_verts.astype(np.float64)
-    base = np.floor(idx)
-    frac = idx - base
-    moving = frac > 0
-    verts = origin + idx * spacing
-    done = np.zeros(len(idx), dtype=bool)
-    sel = np.flatnonzero(moving.sum(axis=1) == 1)  # strictly inside one grid edge
-    axis = np.argmax(moving[sel], axis=1)
-    i0 = base[sel].astype(np.int64)
-    i1 = i0.copy()
-    i1[np.arange(len(sel)), axis] += 1
-    f0 = values[i0[:, 0], i0[:, 1], i0[:, 2]].astype(np.float64)
-    f1 = values[i1[:, 0], i1[:, 1], i1[:, 2]].astype(np.float64)
-    keep = f0 * f1 < 0
-    sel, axis, i0, f0, f1 = sel[keep], axis[keep], i0[keep], f0[keep], f1[keep]
-    start = origin + i0 * spacing  # world position of t = 0
+    index_verts = np.ascontiguousarray(index_verts)  # skimage's comes with reversed columns: slow to read
+    verts = _grid_points(index_verts, origin, spacing)  # marching cubes' positions
+    done = np.zeros(len(verts), dtype=bool)
+    sel, axis, i0, t = _grid_edges(index_verts)
+    flat = values.reshape(-1)  # grid values by flat index; along an edge: + step
+    lin = _flat_index(i0, values.shape)
+    step = np.array([values.shape[1] * values.shape[2], values.shape[2], 1])[axis]
+    f0 = flat[lin].astype(np.float64)
+    f1 = flat[lin + step].astype(np.float64)
+    keep = np.flatnonzero(f0 * f1 < 0)
+    if len(keep) < len(sel):
+        sel, axis, i0, t, lin, step, f0, f1 = (v[keep] for v in (sel, axis, i0, t, lin, step, f0, f1))
+    if len(sel) == 0:
+        return verts, done
+    start = _grid_points(i0, origin, spacing)  # world position of t = 0
     h = spacing[axis]  # edge length
-    edge = np.zeros_like(start)
-    edge[np.arange(len(sel)), axis] = h  # t = 1 minus t = 0
+    along = np.arange(len(sel)) * 3 + axis  # the moving coordinate in start.reshape(-1)
+    start_axis = start.reshape(-1)[along]
     # first guess: root of the cubic through the grid values at t = -1, 0, 1, 2 (error O(h^4)
     # where f is smooth, against O(h^2) for marching cubes' linear interpolation)
-    c, slope = _cubic_root(values, i0, axis, f0, f1, frac[sel, axis])
+    size = np.asarray(values.shape)[axis]
+    c, slope = _cubic_root(flat, lin, step, i0.reshape(-1)[along], size, f0, f1, t)
     root = np.full(len(sel), np.nan)
-    rows = np.arange(len(sel))
-    xs, es, hs = start, edge, h  # of the rows still moving
+    # the rows still moving: their points, where their coordinate along the edge starts, edge
+    # lengths and axes.  A point start + c * edge differs from start only along the edge, as c
+    # stays finite (in [0, 1]: a step that leaves the bracket is replaced by regula falsi's,
+    # c - fc (c - a) / (fc - fa) with fc, fa of opposite signs, which lies between c and a)
+    rows, x, xa, hs, ax = np.arange(len(sel)), start.copy(), start_axis, h, axis
     a = fa = p = fp = None  # bracket end opposite to c, and the previous iterate
     for _ in range(max_iter):
-        fc = _f64(f, xs + c[:, None] * es, device)
+        x.reshape(-1)[np.arange(len(rows)) * 3 + ax] = xa + c * hs
+        fc = _f64(f, x, device)
         positive = fc > 0
         with np.errstate(divide="ignore", invalid="ignore"):
             if a is None:  # the bracket: the grid end whose value has the other sign
-                a = np.where(positive == (f0 > 0), 1.0, 0.0)
-                fa = np.where(a == 1.0, f1, f0)
+                same = positive == (f0 > 0)
+                a = same.astype(np.float64)
+                fa = np.where(same, f1, f0)
                 nxt = c - fc / slope  # Newton with the cubic's slope
             else:  # the bracket becomes [previous iterate, c] when the sign changed
                 flip = positive != (fp > 0)
-                a, fa = np.where(flip, p, a), np.where(flip, fp, fa)
-                nxt = c - fc * (c - p) / (fc - fp)  # secant
-            outside = ~((nxt - a) * (nxt - c) < 0)
-            if outside.any():
-                nxt[outside] = (c - fc * (c - a) / (fc - fa))[outside]  # regula falsi: inside
-        finished = np.abs(nxt - c) * hs <= step_tol  # False for NaN
+                np.copyto(a, p, where=flip)
+                np.copyto(fa, fp, where=flip)
+                secant = c - p  # secant: c - fc (c - p) / (fc - fp)
+                secant *= fc
+                secant /= fc - fp
+                nxt = c - secant
+            move = nxt - c
+            outside = np.flatnonzero(~((nxt - a) * move < 0))
+            if len(outside):  # regula falsi: inside
+                co, fo = c[outside], fc[outside]
+                nxt[outside] = co - fo * (co - a[outside]) / (fo - fa[outside])
+                move[outside] = nxt[outside] - co
+        finished = np.abs(move) * hs <= step_tol  # False for NaN
         exact = fc == 0
-        root[rows[finished]] = nxt[finished]
-        root[rows[exact]] = c[exact]
-        go = ~(finished | exact) & np.isfinite(fc)
+        finished_rows = np.flatnonzero(finished)
+        root[rows[finished_rows]] = nxt[finished_rows]
+        if exact.any():
+            root[rows[exact]] = c[exact]
+        go = np.flatnonzero(~(finished | exact) & np.isfinite(fc))
+        if len(go) == len(rows):
+            p, fp, c = c, fc, nxt
+            continue
         rows, p, fp, c, a, fa = rows[go], c[go], fc[go], nxt[go], a[go], fa[go]
         if len(rows) == 0:
             break
-        xs, es, hs = xs[go], es[go], hs[go]
-    found = np.isfinite(root)
-    verts[sel[found]] = start[found] + root[found, None] * edge[found]
+        x, xa, hs, ax = np.take(x, go, axis=0), xa[go], hs[go], ax[go]
+    found = np.flatnonzero(np.isfinite(root))
+    # start + t * edge: across the edge the grid node's coordinates, which marching cubes' vertex has
+    moving = sel * 3 + axis  # the coordinate along the edge in verts.reshape(-1)
+    verts.reshape(-1)[moving[found]] = start_axis[found] + root[found] * h[found]
+    verts.reshape(-1)[moving[rows]] = start_axis[rows] + c * h[rows]  # not done yet: the best estimate
     done[sel[found]] = True
-    verts[sel[rows]] = start[rows] + c[:, None] * edge[rows]  # not done yet: the best estimate
     return verts, done
 
 
 def _cubic_root(
-    values: np.ndarray, i0: np.ndarray, axis: np.ndarray, f0: np.ndarray, f1: np.ndarray, t: np.ndarray
+    flat: np.ndarray,
+    lin: np.ndarray,
+    step: np.ndarray,
+    coord: np.ndarray,
+    size: np.ndarray,
+    f0: np.ndarray,
+    f1: np.ndarray,
+    t: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Root in (0, 1) and slope there of the cubic through the grid values at t = -1, 0, 1, 2 of each edge.
 
-    A missing neighbour (grid border) is replaced by the value that makes the third
-    difference zero (a quadratic, or linear with both missing).  Three Newton steps from
-    ``t`` (marching cubes' estimate); where they leave the edge, ``t`` is kept.
+    The edges start at ``flat[lin]`` and step by ``step`` (flat grid values), at grid index
+    ``coord`` of ``size`` along their axis.  A missing neighbour (grid border) is replaced by
+    the value that makes the third difference zero (a quadratic, or linear with both missing).
+    Three Newton steps from ``t`` (marching cubes' estimate); where they leave the edge, ``t``
+    is kept.
     """
-    n = np.asarray(values.shape)[axis]
-    rows = np.arange(len(i0))
-    im, i2 = i0.copy(), i0.copy()
-    im[rows, axis] -= 1
-    i2[rows, axis] += 2
-    has_m, has_2 = im[rows, axis] >= 0, i2[rows, axis] < n
-    im[~has_m, axis[~has_m]] = 0
-    i2[~has_2, axis[~has_2]] = n[~has_2] - 1
-    fm = values[im[:, 0], im[:, 1], im[:, 2]].astype(np.float64)
-    f2 = values[i2[:, 0], i2[:, 1], i2[:, 2]].astype(np.float64)
-    fm = np.where(has_m, fm, np.where(has_2, 3 * f0 - 3 * f1 + f2, 2 * f0 - f1))
-    f2 = np.where(has_2, f2, 3 * f1 - 3 * f0 + fm)
+    has_m, has_2 = coord >= 1, coord + 2 < size
+    fm = flat.take(lin - step, mode="clip").astype(np.float64)
+    f2 = flat.take(lin + 2 * step, mode="clip").astype(np.float64)
+    if not (has_m.all() and has_2.all()):
+        fm = np.where(has_m, fm, np.where(has_2, 3 * f0 - 3 * f1 + f2, 2 * f0 - f1))
+        f2 = np.where(has_2, f2, 3 * f1 - 3 * f0 + fm)
     # P(t) = f0 + b1 t + b2 t^2 + b3 t^3 (Lagrange on -1, 0, 1, 2 in power form)
-    b1 = -fm / 3 - f0 / 2 + f1 - f2 / 6
-    b2 = fm / 2 - f0 + f1 / 2
-    b3 = -fm / 6 + f0 / 2 - f1 / 2 + f2 / 6
+    half0, half1, sixth2 = f0 / 2, f1 / 2, f2 / 6
+    b1 = -fm / 3 - half0 + f1 - sixth2
+    b2 = fm / 2 - f0 + half1
+    b3 = -fm / 6 + half0 - half1 + sixth2
+    twice_b2 = 2 * b2
     r = t.copy()
     with np.errstate(divide="ignore", invalid="ignore"):
         for _ in range(3):
-            r = r - (f0 + r * (b1 + r * (b2 + r * b3))) / (b1 + r * (2 * b2 + 3 * r * b3))
-        slope = b1 + r * (2 * b2 + 3 * r * b3)
-        good = (r > 0) & (r < 1) & np.isfinite(slope) & (slope * (f1 - f0) > 0)
-    return np.where(good, r, t), np.where(good, slope, f1 - f0)
+            value = r * b3  # f0 + r (b1 + r (b2 + r b3)), in place
+            value += b2
+            value *= r
+            value += b1
+            value *= r
+            value += f0
+            value /= _cubic_slope(r, b1, twice_b2, b3)
+            r -= value
+        slope = _cubic_slope(r, b1, twice_b2, b3)
+        rise = f1 - f0
+        good = (r > 0) & (r < 1) & np.isfinite(slope) & (slope * rise > 0)
+    if good.all():
+        return r, slope
+    return np.where(good, r, t), np.where(good, slope, rise)
+
+
+def _cubic_slope(r: np.ndarray, b1: np.ndarray, twice_b2: np.ndarray, b3: np.ndarray) -> np.ndarray:
+    """b1 + r (2 b2 + 3 r b3), in place on one temporary."""
+    slope = 3 * r
+    slope *= b3
+    slope += twice_b2
+    slope *= r
+    slope += b1
+    return slope
 
 
 def _normals(gradient: np.ndarray, verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """Unit outward normals -grad f / |grad f|; the area-weighted face normal where grad f vanishes."""
-    length = np.linalg.norm(gradient, axis=1)
+    length = _row_norms(gradient)
     good = np.isfinite(length) & (length > 0)
+    if good.all():
+        normals = np.negative(gradient)
+        normals /= length[:, None]
+        return normals
     normals = np.zeros_like(verts)
     normals[good] = -gradient[good] / length[good, None]
-    if not good.all() and len(faces):
+    if len(faces):
         a, b, c = (verts[faces[:, i]] for i in range(3))
         face_n = np.cross(b - a, c - a)
         acc = np.zeros_like(verts)

@@ -160,7 +160,7 @@ class CompiledModel(Model):
                         f"compiled({self.__name__}): torch.compile failed ({type(error).__name__}: "
                         f"{str(error).splitlines()[0] if str(error) else ''}); evaluating eagerly",
                         RuntimeWarning,
-                        stacklevel=3,
+                        stacklevel=4,  # the caller of the model
                     )
             return out
         if not isinstance(out, torch.Tensor) or out.shape != flat.shape[:1]:
@@ -220,7 +220,7 @@ def warm_up(
     >>> from pyfrep_core.models import fig1_part
     >>> fast = compiled(fig1_part)
     >>> seconds = warm_up(fast, dtypes=(torch.float64,), sensitivities=False)  # compiles, once per process
-    >>> warm_up(fast, dtypes=(torch.float64,), sensitivities=False) < seconds  # compiled already
+    >>> warm_up(fast, dtypes=(torch.float64,), sensitivities=False) < 1.0  # compiled already
     True
     """
     import time

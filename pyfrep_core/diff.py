@@ -142,16 +142,25 @@ def _evaluate(f: Callable, xr: torch.Tensor) -> torch.Tensor:
     return y
 
 
-def _vjp(y: torch.Tensor, xr: torch.Tensor, cotangent: torch.Tensor | None = None, create_graph: bool = True):
+def _vjp(
+    y: torch.Tensor,
+    xr: torch.Tensor,
+    cotangent: torch.Tensor | None = None,
+    create_graph: bool = True,
+    retain_graph: bool = True,
+):
     """sum_i cotangent_i * d y_i / d x, one backward pass; zeros where y does not depend on x.
 
-    The graph of ``y`` is kept (``retain_graph``) so further passes can follow.
+    The graph of ``y`` is kept (``retain_graph``) so further passes can follow; a last pass
+    frees it (a compiled model's backward, which reuses its saved buffers, requires that).
     """
     if not y.requires_grad:
         return torch.zeros_like(xr)
     if cotangent is None:
         y, cotangent = y.sum(), None
-    (g,) = torch.autograd.grad(y, xr, cotangent, retain_graph=True, create_graph=create_graph, allow_unused=True)
+    (g,) = torch.autograd.grad(
+        y, xr, cotangent, retain_graph=retain_graph, create_graph=create_graph, allow_unused=True
+    )
     return torch.zeros_like(xr) if g is None else g
 
 
@@ -163,7 +172,8 @@ def _derivatives(f: Callable, x: torch.Tensor, order: int, create_graph: bool) -
         xr = _leaf(x, create_graph)
         with once:
             y = _evaluate(f, xr)
-        g = _vjp(y, xr, create_graph=create_graph or order > 1)
+        last = order == 1 and not create_graph  # the only pass: nothing needs the graph after it
+        g = _vjp(y, xr, create_graph=create_graph or order > 1, retain_graph=not last)
         if order == 1:
             out = (y, g)
         else:

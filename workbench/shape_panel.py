@@ -167,6 +167,7 @@ class ShapePanel(widgets.VBox):
         self._warming: set[int] = set()
         self._warm_lock = threading.Lock()
         self.warm_up_s: dict[str, float] = {}  # model name -> seconds its compilation took
+        self.warm_up_errors: dict[str, Exception] = {}  # model name -> why it stays eager
         self.export_dir = export_dir
         self.mesh: Mesh | None = None
         self.scalars: np.ndarray | None = None
@@ -299,6 +300,8 @@ class ShapePanel(widgets.VBox):
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore")  # a failure leaves the eager model in use; status says so
                     self.warm_up(model)
+            except Exception as err:  # noqa: BLE001  (whatever the compiler raised: the eager model stays)
+                self.warm_up_errors[model.__name__] = err
             finally:
                 self._warming.discard(id(model))
 

@@ -46,7 +46,7 @@ from .model import Model
 __all__ = ["compiled", "first_order", "warm_up"]
 
 CHUNK_POINTS = 1 << 18  # points per call: a fused loop keeps no temporaries, so larger chunks only save calls
-RECOMPILE_LIMIT = 64  # variants per model: dtypes x (values, grad f, df/dp for each parameter)
+RECOMPILE_LIMIT = 64  # variants per model (dtypes x values, grad f, df/dp per parameter); set process-wide
 
 _state = threading.local()
 
@@ -103,6 +103,9 @@ class CompiledModel(Model):
         self.eager = eager
         self.failure: BaseException | None = None
         self._kernel = torch.compile(eager.fn, dynamic=dynamic)
+        # variants are per code object (dtype, grad f, df/dp per parameter): raise dynamo's limit, never lower it
+        config = torch._dynamo.config
+        config.recompile_limit = max(config.recompile_limit, RECOMPILE_LIMIT)
         self._lock = threading.Lock()
 
         @functools.wraps(eager.fn)
@@ -149,7 +152,7 @@ class CompiledModel(Model):
             return self.eager.fn(x, **params)
         try:
             # the thread count is part of what a kernel is compiled for: one, whoever calls
-            with torch._dynamo.config.patch(recompile_limit=RECOMPILE_LIMIT), intra_op_threads(self._threads(flat)):
+            with intra_op_threads(self._threads(flat)):
                 out = self._kernel(flat, **args)
         except Exception as error:  # noqa: BLE001  (any compiler failure: the eager model decides)
             out = self.eager.fn(x, **params)  # a genuine error in the model raises here

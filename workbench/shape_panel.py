@@ -25,6 +25,7 @@ from typing import Any
 
 import ipywidgets as widgets
 import numpy as np
+import torch
 
 from pyfrep_core import Mesh, Model, polygonize
 from pyfrep_core.compiled import CompiledModel, warm_up
@@ -282,7 +283,9 @@ class ShapePanel(widgets.VBox):
         with self._warm_lock:  # one compilation at a time
             if id(model) in self._fast:
                 return 0.0
-            seconds = warm_up(fast, {name: p.default for name, p in model.params.items()})
+            # the sparse grid (eager default, or asked for) also takes float32 gradients at its coarse nodes
+            gradients = (torch.float32, torch.float64) if self.sparse else (torch.float64,)
+            seconds = warm_up(fast, {name: p.default for name, p in model.params.items()}, gradients=gradients)
             if fast.failure is None:
                 self._fast[id(model)] = fast
             self.warm_up_s[model.__name__] = seconds

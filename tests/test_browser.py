@@ -178,6 +178,7 @@ def test_slider_remeshes_and_the_view_changes(page):
         page.keyboard.press(key)
         key = "ArrowRight" if key == "ArrowLeft" else "ArrowLeft"
     compiled_text = status_text(page)
+    page.screenshot(path=str(ARTIFACTS / "shape_compiled.png"))
     assert "(compiled)" in compiled_text, compiled_text
     assert int(re.search(r"(\d+) triangles", compiled_text).group(1)) > 0
 

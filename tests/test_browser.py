@@ -6,12 +6,9 @@ Needs Debian's chromium at /usr/bin/chromium (``make browser`` installs it).
 
 from __future__ import annotations
 
-import io
 import os
 import re
-import shutil
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -19,31 +16,20 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-ROOT = Path(__file__).resolve().parents[1]
-ARTIFACTS = ROOT / "test-artifacts"
-CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
-CHROMIUM_ARGS = [
-    "--headless",
-    "--no-sandbox",
-    "--disable-gpu",
-    "--disable-quic",
-    "--no-first-run",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--disable-sync",
-]
-
-pytestmark = pytest.mark.skipif(
-    not os.path.exists(CHROMIUM), reason=f"chromium not found at {CHROMIUM}: run `make browser` (apt) to install it"
+from browser_support import (
+    ARTIFACTS,
+    CHROMIUM,
+    CHROMIUM_ARGS,
+    ROOT,
+    free_port,
+    needs_chromium,
+    pixels,
+    record_external,
+    wait_for_port,
 )
+
+pytestmark = needs_chromium
 playwright_api = pytest.importorskip("playwright.sync_api")
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 @pytest.fixture(scope="module")
@@ -69,15 +55,7 @@ def voila_url():
         start_new_session=True,
     )
     try:
-        deadline = time.monotonic() + 60
-        while True:
-            try:
-                socket.create_connection(("127.0.0.1", port), timeout=1).close()
-                break
-            except OSError:
-                if proc.poll() is not None or time.monotonic() > deadline:
-                    pytest.fail(f"voila did not start (exit {proc.poll()}); see {ARTIFACTS / 'voila.log'}")
-                time.sleep(0.2)
+        wait_for_port(proc, port, "voila", ARTIFACTS / "voila.log")
         yield f"http://127.0.0.1:{port}/"
     finally:
         os.killpg(proc.pid, signal.SIGTERM)  # voila and the kernels it started
@@ -101,15 +79,7 @@ def page(voila_url, external):
         browser = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
         try:
             pg = browser.new_page(viewport={"width": 1500, "height": 1000})
-            pg.on(
-                "request",
-                lambda r: (
-                    external.append(r.url)
-                    if not re.match(r"(https?|wss?)://(127\.0\.0\.1|localhost)[:/]", r.url)
-                    and not r.url.startswith(("data:", "blob:"))
-                    else None
-                ),
-            )
+            record_external(pg, external)
             pg.goto(voila_url, wait_until="domcontentloaded", timeout=120_000)  # "load" may never fire
             pg.wait_for_selector(".widget-slider", timeout=240_000)
             yield pg
@@ -120,12 +90,6 @@ def page(voila_url, external):
 
 def status_text(pg) -> str:
     return pg.locator(".widget-html-content", has_text="remeshed in").last.inner_text()
-
-
-def pixels(png: bytes) -> np.ndarray:
-    from PIL import Image
-
-    return np.asarray(Image.open(io.BytesIO(png)).convert("RGB"), dtype=np.int16)
 
 
 def view_locator(pg):

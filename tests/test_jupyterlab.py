@@ -22,13 +22,10 @@ go to test-artifacts/.
 
 from __future__ import annotations
 
-import io
 import json
 import os
 import re
-import shutil
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -36,26 +33,21 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from browser_support import (
+    ARTIFACTS,
+    CHROMIUM,
+    CHROMIUM_ARGS,
+    free_port,
+    needs_chromium,
+    pixels,
+    record_external,
+    wait_for_port,
+)
 
-ROOT = Path(__file__).resolve().parents[1]
-ARTIFACTS = ROOT / "test-artifacts"
-CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
 JUPYTER_LAB = Path(sys.executable).with_name("jupyter-lab")
-CHROMIUM_ARGS = [
-    "--headless",
-    "--no-sandbox",
-    "--disable-gpu",
-    "--disable-quic",
-    "--no-first-run",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--disable-sync",
-]
 
 pytestmark = [
-    pytest.mark.skipif(
-        not os.path.exists(CHROMIUM), reason=f"chromium not found at {CHROMIUM}: run `make browser` (apt) to install it"
-    ),
+    needs_chromium,
     pytest.mark.skipif(not JUPYTER_LAB.exists(), reason=f"jupyterlab not installed ({JUPYTER_LAB} missing)"),
 ]
 playwright_api = pytest.importorskip("playwright.sync_api")
@@ -79,12 +71,6 @@ CELLS = [
     "curv.quantity.observe(record, names='value')\n"
     "probe",
 ]
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def processes_naming(path: Path) -> list[int]:
@@ -169,15 +155,7 @@ def lab_url(tmp_path_factory, lab_log):
         start_new_session=True,
     )
     try:
-        deadline = time.monotonic() + 60
-        while True:
-            try:
-                socket.create_connection(("127.0.0.1", port), timeout=1).close()
-                break
-            except OSError:
-                if proc.poll() is not None or time.monotonic() > deadline:
-                    pytest.fail(f"jupyter lab did not start (exit {proc.poll()}); see {lab_log}")
-                time.sleep(0.2)
+        wait_for_port(proc, port, "jupyter lab", lab_log)
         yield f"http://127.0.0.1:{port}/lab/tree/panel.ipynb"
     finally:
         proc.terminate()  # the server shuts its kernel down, then exits
@@ -204,15 +182,7 @@ def page(lab_url, external):
         browser = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
         pg = browser.new_page(viewport={"width": 1500, "height": 1000})
         try:
-            pg.on(
-                "request",
-                lambda r: (
-                    external.append(r.url)
-                    if not re.match(r"(https?|wss?)://(127\.0\.0\.1|localhost)[:/]", r.url)
-                    and not r.url.startswith(("data:", "blob:"))
-                    else None
-                ),
-            )
+            record_external(pg, external)
             pg.goto(lab_url, wait_until="domcontentloaded", timeout=60_000)
             pg.wait_for_selector(".jp-Notebook .jp-Cell", timeout=60_000)
             pg.locator(".lm-MenuBar-itemLabel", has_text=re.compile(r"^Run$")).click()
@@ -227,12 +197,6 @@ def page(lab_url, external):
             pg.screenshot(path=str(ARTIFACTS / "lab_page.png"), full_page=True)
             (ARTIFACTS / "jupyterlab_external_requests.txt").write_text("\n".join(external) + "\n")
             browser.close()
-
-
-def pixels(png: bytes) -> np.ndarray:
-    from PIL import Image
-
-    return np.asarray(Image.open(io.BytesIO(png)).convert("RGB"), dtype=np.int16)
 
 
 def picture_stats(png: bytes) -> dict[str, float]:

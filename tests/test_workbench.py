@@ -84,6 +84,25 @@ def test_compiled_evaluation_gives_the_eager_mesh_and_colours(panel):
     assert np.abs(fig1_part(panel.mesh.vertices, r=0.42)).max() < 1e-9
 
 
+def test_a_live_panel_compiles_in_the_background_then_remeshes_compiled():
+    p = shape_panel(fig1_part, resolution=32, preview_resolution=None, backend="image", threaded=True)
+    try:
+        p.wait()
+        p.main.drain()  # no kernel loop here: the main-thread work is queued
+        assert "(eager)" in p.status.value or "(compiled)" in p.status.value  # compiled already in this process?
+        assert p._warm_thread is not None or p.evaluator() is not fig1_part  # the background compilation started
+        if p._warm_thread is not None:
+            p._warm_thread.join(timeout=300)
+        assert p.evaluator() is not fig1_part and not p.warm_up_errors
+        p.sliders["r"].value = 0.45
+        p.wait()
+        p.main.drain()
+        assert "(compiled)" in p.status.value and "r = 0.45" in p.status.value
+        assert np.abs(fig1_part(p.mesh.vertices, r=0.45)).max() < 1e-9
+    finally:
+        p.view.close()
+
+
 def test_a_panel_without_compilation_stays_eager():
     p = shape_panel(fig1_part, resolution=24, backend="image", threaded=False, compiled=False)
     try:

@@ -405,11 +405,17 @@ class ShapePanel(widgets.VBox):
         values = ", ".join(f"{k} = {v:.4g}" for k, v in job["params"].items())
         extra = f" <span style='color:#a60'>({html.escape(result['note'])})</span>" if result["note"] else ""
         how = "compiled" if result["compiled"] else "eager"
+        self._warm_up_soon()  # after the first mesh is built, so that it does not wait for the compiler
+        model = job["model"]
+        if not result["compiled"] and id(model) in self._warming:
+            extra += "; compiling the model's kernels in the background"
+        elif not result["compiled"] and model.__name__ in self.warm_up_errors:
+            error = self.warm_up_errors[model.__name__]
+            extra += f"; not compiled ({html.escape(type(error).__name__)}): eager"
         self.status.value = (
             f"remeshed in {1000 * result['seconds']:.0f} ms ({how}), {mesh.n_faces} triangles "
             f"({job['resolution']}&sup3;; {values}); view {1000 * self.view.last_render_s:.0f} ms{extra}"
         )
-        self._warm_up_soon()  # after the first mesh is shown, so that it does not wait for the compiler
 
     # -- buttons ------------------------------------------------------------------------------
     def reset(self) -> None:

@@ -9,6 +9,7 @@ import time
 
 import numpy as np
 import pytest
+import torch
 from PIL import Image
 
 import workbench
@@ -99,6 +100,34 @@ def test_a_live_panel_compiles_in_the_background_then_remeshes_compiled():
         p.main.drain()
         assert "(compiled)" in p.status.value and "r = 0.45" in p.status.value
         assert np.abs(fig1_part(p.mesh.vertices, r=0.45)).max() < 1e-9
+    finally:
+        p.view.close()
+
+
+@torch.library.custom_op("pyfrep_test_workbench::opaque_copy", mutates_args=())
+def _opaque_copy(x: torch.Tensor) -> torch.Tensor:
+    """A copy that torch.compile cannot trace (no fake implementation)."""
+    return x.clone()
+
+
+_opaque_copy.register_autograd(lambda ctx, cotangent: cotangent)
+
+
+@model(bounds=((-1.0,) * 3, (1.0,) * 3), r=Param(0.6, 0.3, 0.9))
+def opaque_ball(x, r):
+    return sphere(_opaque_copy(x), r=r)
+
+
+def test_a_model_that_does_not_compile_stays_eager_and_says_so():
+    p = shape_panel(opaque_ball, resolution=24, backend="image", threaded=False)
+    try:
+        with pytest.warns(RuntimeWarning, match="torch.compile failed"):
+            p.warm_up()
+        assert p.evaluator() is opaque_ball and "opaque_ball" in p.warm_up_errors
+        assert p.warm_up() == 0.0  # not tried again
+        p.sliders["r"].value = 0.7
+        assert "(eager)" in p.status.value and "not compiled" in p.status.value
+        np.testing.assert_allclose(np.linalg.norm(p.mesh.vertices, axis=1), 0.7, atol=1e-9)
     finally:
         p.view.close()
 

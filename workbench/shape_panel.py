@@ -166,6 +166,7 @@ class ShapePanel(widgets.VBox):
         self.compiled = compiled
         self._fast: dict[int, CompiledModel] = {}  # id(model) -> its compiled form, once warmed up
         self._warming: set[int] = set()
+        self._not_compiled: set[int] = set()  # id(model) of models whose compilation failed: eager for good
         self._warm_lock = threading.Lock()
         self.warm_up_s: dict[str, float] = {}  # model name -> seconds its compilation took
         self.warm_up_errors: dict[str, Exception] = {}  # model name -> why it stays eager
@@ -277,7 +278,7 @@ class ShapePanel(widgets.VBox):
     def warm_up(self, model: Model | None = None) -> float:
         """Compile ``model``'s kernels now (blocking; seconds taken; 0 when done before or disabled)."""
         model = self.model if model is None else model
-        if not self.compiled or id(model) in self._fast:
+        if not self.compiled or id(model) in self._fast or id(model) in self._not_compiled:
             return 0.0
         fast = compile_model(model)
         with self._warm_lock:  # one compilation at a time
@@ -288,13 +289,17 @@ class ShapePanel(widgets.VBox):
             seconds = warm_up(fast, {name: p.default for name, p in model.params.items()}, gradients=gradients)
             if fast.failure is None:
                 self._fast[id(model)] = fast
+            else:  # torch.compile gave up (the wrapper fell back to eager): do not try again
+                self._not_compiled.add(id(model))
+                self.warm_up_errors[model.__name__] = fast.failure
             self.warm_up_s[model.__name__] = seconds
         return seconds
 
     def _warm_up_soon(self) -> None:
         """Compile the current model on a background thread (live panels only), once."""
         model = self.model
-        if not (self.compiled and self.threaded) or id(model) in self._fast or id(model) in self._warming:
+        done = id(model) in self._fast or id(model) in self._warming or id(model) in self._not_compiled
+        if not (self.compiled and self.threaded) or done:
             return
         self._warming.add(id(model))
 
@@ -304,6 +309,7 @@ class ShapePanel(widgets.VBox):
                     warnings.simplefilter("ignore")  # a failure leaves the eager model in use; status says so
                     self.warm_up(model)
             except Exception as err:  # noqa: BLE001  (whatever the compiler raised: the eager model stays)
+                self._not_compiled.add(id(model))
                 self.warm_up_errors[model.__name__] = err
             finally:
                 self._warming.discard(id(model))

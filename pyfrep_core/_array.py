@@ -145,3 +145,65 @@ def safe_sqrt(s: torch.Tensor) -> torch.Tensor:
     R-functions at f1 = f2 = 0 give the sub-gradient grad f1 + grad f2 instead of NaN.
     """
     return torch.sqrt(s + torch.finfo(s.dtype).tiny)
+
+
+def tracing(*values: Any) -> bool:
+    """True where values cannot be inspected: under torch.compile or inside a torch.func transform.
+
+    Checks that read a tensor's values (``bool(t > 0)``) are skipped there: they would break the
+    graph (compile) or raise on a batched tensor (vmap).  The kernel validates its inputs before it
+    enters such a transform, so nothing unchecked reaches a model that way.
+    """
+    if torch.compiler.is_compiling():
+        return True
+    return any(
+        isinstance(v, torch.Tensor) and torch._C._functorch.is_functorch_wrapped_tensor(v) for v in values
+    )
+
+
+def check_param(
+    value: Any,
+    name: str,
+    fn: str,
+    *,
+    positive: bool = False,
+    nonzero: bool = False,
+    nonnegative: bool = False,
+) -> None:
+    """Raise ValueError naming ``fn``'s argument ``name`` when a geometric parameter is degenerate.
+
+    ``value`` is a number, a sequence of numbers or a tensor (a parameter, possibly requiring grad);
+    it must be finite, and positive / nonzero / nonnegative when asked.  Tensors are inspected only
+    outside :func:`tracing` (one device sync).
+
+    >>> check_param(0.5, "r", "sphere", positive=True)
+    >>> check_param(0.0, "r", "sphere", positive=True)
+    Traceback (most recent call last):
+    ...
+    ValueError: sphere: r must be positive, got 0.0
+    """
+    if isinstance(value, torch.Tensor):
+        if tracing(value):
+            return
+        arr = value.detach().cpu().double().numpy()
+    else:
+        if isinstance(value, list | tuple) and tracing(*value):
+            return
+        try:
+            arr = np.asarray(
+                [v.detach().cpu().double() if isinstance(v, torch.Tensor) else v for v in value]
+                if isinstance(value, list | tuple)
+                else value,
+                dtype=np.float64,
+            )
+        except (TypeError, ValueError):
+            raise TypeError(f"{fn}: {name} must be a number, got {value!r}") from None
+    shown = value.detach().cpu().tolist() if isinstance(value, torch.Tensor) else value
+    if not np.isfinite(arr).all():
+        raise ValueError(f"{fn}: {name} must be finite, got {shown!r}")
+    if positive and not (arr > 0).all():
+        raise ValueError(f"{fn}: {name} must be positive, got {shown!r}")
+    if nonnegative and not (arr >= 0).all():
+        raise ValueError(f"{fn}: {name} must be nonnegative, got {shown!r}")
+    if nonzero and not (arr != 0).any():
+        raise ValueError(f"{fn}: {name} must not be zero, got {shown!r}")

@@ -8,6 +8,7 @@ the result is converted back when no torch tensor came in.
 from __future__ import annotations
 
 import functools
+import math
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -207,3 +208,70 @@ def check_param(
         raise ValueError(f"{fn}: {name} must be nonnegative, got {shown!r}")
     if nonzero and not (arr != 0).any():
         raise ValueError(f"{fn}: {name} must not be zero, got {shown!r}")
+
+
+def check_option(
+    value: Any,
+    name: str,
+    fn: str,
+    kind: str = "float",
+    *,
+    positive: bool = False,
+    minimum: float | None = None,
+    maximum: float | None = None,
+    none: bool = False,
+    choices: Sequence[Any] | None = None,
+) -> Any:
+    """Validate a setting ``name`` of ``fn`` (a step count, a rate, a flag) and return it as a plain value.
+
+    ``kind`` is ``"int"`` (an integer; an integral float such as ``1e4`` is accepted and returned as
+    int), ``"float"`` (a finite real number, returned as float), ``"bool"`` (True or False) or
+    ``"choice"`` (one of ``choices``).  Numbers must also be positive, and within
+    [``minimum``, ``maximum``], when asked; ``none=True`` lets None through.  A value of the wrong
+    type raises TypeError, a bad value ValueError; both messages name ``fn``, ``name`` and the value.
+    Unlike :func:`check_param` (geometric parameters, possibly tensors under a transform), options are
+    plain Python values read once, before any work.
+
+    >>> check_option(1e3, "steps", "redistance", "int", positive=True)
+    1000
+    >>> check_option(float("inf"), "lr", "fit", positive=True)
+    Traceback (most recent call last):
+    ...
+    ValueError: fit: lr must be a finite number, got inf
+    >>> check_option(2.5, "fourier_features", "redistance", "int", minimum=0)
+    Traceback (most recent call last):
+    ...
+    ValueError: redistance: fourier_features must be an integer, got 2.5
+    """
+    if value is None and none:
+        return None
+    if kind == "choice":
+        if choices is None or not any(value is c or (type(value) is type(c) and value == c) for c in choices):
+            raise ValueError(f"{fn}: {name} must be one of {', '.join(map(repr, choices or ()))}, got {value!r}")
+        return value
+    if kind == "bool":
+        if not isinstance(value, bool | np.bool_):
+            raise TypeError(f"{fn}: {name} must be True or False, got {value!r}")
+        return bool(value)
+    if kind not in ("int", "float"):
+        raise ValueError(f"check_option: kind must be 'int', 'float', 'bool' or 'choice', got {kind!r}")
+    if isinstance(value, torch.Tensor) and value.numel() == 1 and not value.requires_grad:
+        value = value.item()
+    if isinstance(value, bool | np.bool_) or not isinstance(value, int | float | np.integer | np.floating):
+        what = "an integer" if kind == "int" else "a number"
+        raise TypeError(f"{fn}: {name} must be {what}{' or None' if none else ''}, got {value!r}")
+    if not math.isfinite(value):
+        raise ValueError(f"{fn}: {name} must be a finite number, got {value!r}")
+    if kind == "int":
+        if int(value) != value:
+            raise ValueError(f"{fn}: {name} must be an integer, got {value!r}")
+        out: int | float = int(value)
+    else:
+        out = float(value)
+    if positive and not out > 0:
+        raise ValueError(f"{fn}: {name} must be positive, got {value!r}")
+    if minimum is not None and out < minimum:
+        raise ValueError(f"{fn}: {name} must be >= {minimum}, got {value!r}")
+    if maximum is not None and out > maximum:
+        raise ValueError(f"{fn}: {name} must be <= {maximum}, got {value!r}")
+    return out

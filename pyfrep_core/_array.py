@@ -162,6 +162,38 @@ def tracing(*values: Any) -> bool:
     )
 
 
+def param_array(value: Any, name: str, fn: str) -> np.ndarray | None:
+    """A geometric parameter's values as a float64 numpy array, or None while :func:`tracing`.
+
+    ``value`` is a number, a sequence of numbers (possibly 0-d tensors) or a tensor (a
+    parameter, possibly requiring grad: read without its graph, one device sync).  Checks
+    that relate two parameters (``x1 != x2``) read them through this.
+
+    >>> param_array((1, 2.5), "e", "superQuadric")
+    array([1. , 2.5])
+    """
+    if isinstance(value, torch.Tensor):
+        if tracing(value):
+            return None
+        return value.detach().cpu().double().numpy()
+    if isinstance(value, list | tuple) and tracing(*value):
+        return None
+    try:
+        return np.asarray(
+            [v.detach().cpu().double() if isinstance(v, torch.Tensor) else v for v in value]
+            if isinstance(value, list | tuple)
+            else value,
+            dtype=np.float64,
+        )
+    except (TypeError, ValueError):
+        raise TypeError(f"{fn}: {name} must be a number, got {value!r}") from None
+
+
+def shown(value: Any) -> Any:
+    """A parameter as plain numbers for an error message (a tensor becomes a list)."""
+    return value.detach().cpu().tolist() if isinstance(value, torch.Tensor) else value
+
+
 def check_param(
     value: Any,
     name: str,
@@ -174,40 +206,59 @@ def check_param(
     """Raise ValueError naming ``fn``'s argument ``name`` when a geometric parameter is degenerate.
 
     ``value`` is a number, a sequence of numbers or a tensor (a parameter, possibly requiring grad);
-    it must be finite, and positive / nonzero / nonnegative when asked.  Tensors are inspected only
-    outside :func:`tracing` (one device sync).
+    it must be finite, and positive / nonzero / nonnegative (every entry) when asked.  ``nonzero``
+    is for a number or a direction: no row along the last axis may be all zero (a (3,) axis must
+    not be the zero vector; a (B, 1) batch of scale factors must have no zero).  Tensors are
+    inspected only outside :func:`tracing` (one device sync).
 
     >>> check_param(0.5, "r", "sphere", positive=True)
     >>> check_param(0.0, "r", "sphere", positive=True)
     Traceback (most recent call last):
     ...
     ValueError: sphere: r must be positive, got 0.0
+    >>> check_param((0.0, 0.0, 0.0), "axis", "rotate", nonzero=True)
+    Traceback (most recent call last):
+    ...
+    ValueError: rotate: axis must not be zero, got (0.0, 0.0, 0.0)
     """
-    if isinstance(value, torch.Tensor):
-        if tracing(value):
-            return
-        arr = value.detach().cpu().double().numpy()
-    else:
-        if isinstance(value, list | tuple) and tracing(*value):
-            return
-        try:
-            arr = np.asarray(
-                [v.detach().cpu().double() if isinstance(v, torch.Tensor) else v for v in value]
-                if isinstance(value, list | tuple)
-                else value,
-                dtype=np.float64,
-            )
-        except (TypeError, ValueError):
-            raise TypeError(f"{fn}: {name} must be a number, got {value!r}") from None
-    shown = value.detach().cpu().tolist() if isinstance(value, torch.Tensor) else value
+    arr = param_array(value, name, fn)
+    if arr is None:
+        return
     if not np.isfinite(arr).all():
-        raise ValueError(f"{fn}: {name} must be finite, got {shown!r}")
+        raise ValueError(f"{fn}: {name} must be finite, got {shown(value)!r}")
     if positive and not (arr > 0).all():
-        raise ValueError(f"{fn}: {name} must be positive, got {shown!r}")
+        raise ValueError(f"{fn}: {name} must be positive, got {shown(value)!r}")
     if nonnegative and not (arr >= 0).all():
-        raise ValueError(f"{fn}: {name} must be nonnegative, got {shown!r}")
-    if nonzero and not (arr != 0).any():
-        raise ValueError(f"{fn}: {name} must not be zero, got {shown!r}")
+        raise ValueError(f"{fn}: {name} must be nonnegative, got {shown(value)!r}")
+    if nonzero and not (arr != 0).reshape(-1, arr.shape[-1] if arr.ndim else 1).any(-1).all():
+        raise ValueError(f"{fn}: {name} must not be zero, got {shown(value)!r}")
+
+
+class MemoryBudgetError(ValueError, MemoryError):
+    """A call that would need more memory than the machine has (a ValueError for bad input, and a MemoryError)."""
+
+
+def check_memory(need: float, fn: str, what: str, advice: str) -> None:
+    """Raise :class:`MemoryBudgetError` before allocating when ``need`` bytes exceed the available memory.
+
+    The budget is :func:`pyfrep_core.mesh.available_memory` (``MemAvailable``), the one
+    :func:`pyfrep_core.polygonize` checks its grids against; unknown memory passes.
+
+    >>> check_memory(1024, "spinodoid", "numwaves=10", "use fewer waves")
+    >>> try:
+    ...     check_memory(1e30, "spinodoid", "numwaves=1e28", "use fewer waves")
+    ... except MemoryBudgetError as err:
+    ...     print(str(err).split(",")[0])
+    spinodoid: numwaves=1e28 needs about 9.31e+20 GiB
+    """
+    from .mesh import available_memory  # the kernel's one memory budget (mesh imports this module's users)
+
+    have = available_memory()
+    if have is not None and need > have:
+        raise MemoryBudgetError(
+            f"{fn}: {what} needs about {need / 2**30:.3g} GiB, but only {have / 2**30:.3g} GiB "
+            f"of memory is available; {advice}"
+        )
 
 
 def check_option(

@@ -14,7 +14,7 @@ from collections.abc import Sequence
 import numpy as np
 import torch
 
-from ._array import frep, safe_sqrt, vec
+from ._array import check_param, frep, safe_sqrt, vec
 from .operations import intersection
 from .transforms import rotate3DX, rotate3DY, rotate3DZ
 
@@ -70,6 +70,8 @@ def sphere(x: torch.Tensor, center: Center = (0.0, 0.0, 0.0), r: float = 1.0) ->
     >>> sphere(torch.tensor([[0.0, 0.0, 0.0], [2.0, 0.0, 0.0]]), r=1.0)
     tensor([ 1., -3.])
     """
+    check_param(center, "center", "sphere")
+    check_param(r, "r", "sphere", positive=True)
     d = x - vec(center, x)
     return r * r - (d * d).sum(-1)
 
@@ -86,11 +88,17 @@ def ellipsoid(
     >>> ellipsoid(torch.tensor([[2.0, 0.0, 0.0]]), a=2.0, b=1.0, c=1.0)
     tensor([0.])
     """
+    check_param(center, "center", "ellipsoid")
+    for name, value in (("a", a), ("b", b), ("c", c)):
+        check_param(value, name, "ellipsoid", positive=True)
     d = x - vec(center, x)
     return 1.0 - (d[..., 0] / a) ** 2 - (d[..., 1] / b) ** 2 - (d[..., 2] / c) ** 2
 
 
 def _cyl(x: torch.Tensor, center: Center, r: float, axis: int) -> torch.Tensor:
+    fn = "cyl" + "XYZ"[axis]
+    check_param(center, "center", fn)
+    check_param(r, "r", fn, positive=True)
     d = x - vec(center, x)
     i, j = [k for k in range(3) if k != axis]
     return r * r - d[..., i] ** 2 - d[..., j] ** 2
@@ -153,6 +161,9 @@ def block(
     >>> block(torch.tensor([[0.5, 0.5, 0.5]]), vertex=(0, 0, 0), dx=1, dy=1, dz=1) > 0
     tensor([True])
     """
+    check_param(vertex, "vertex", "block")
+    for name, value in (("dx", dx), ("dy", dy), ("dz", dz)):
+        check_param(value, name, "block", positive=True)
     v = vec(vertex, x, name="vertex")
     d = x - v
     sx = d[..., 0] * (dx - d[..., 0])
@@ -162,6 +173,10 @@ def block(
 
 
 def _torus(x: torch.Tensor, center: Center, R: float, r: float, axis: int) -> torch.Tensor:
+    fn = "torus" + "XYZ"[axis]
+    check_param(center, "center", fn)
+    check_param(R, "R", fn, nonnegative=True)  # R = 0 is the ball of radius r; R < 0 is no torus
+    check_param(r, "r", fn, positive=True)
     d = x - vec(center, x)
     i, j = [k for k in range(3) if k != axis]
     # distance from the axis; safe_sqrt keeps grad finite on the axis itself
@@ -273,6 +288,8 @@ def circle(x: torch.Tensor, center: Center2 = (0.0, 0.0), r: float = 1.0) -> tor
     >>> circle(torch.tensor([[0.0, 0.0], [0.0, 1.0], [2.0, 0.0]]), r=1.0)
     tensor([ 1.,  0., -3.])
     """
+    check_param(center, "center", "circle")
+    check_param(r, "r", "circle", positive=True)
     d = _plane_offset(x, center, "center")
     return r * r - (d * d).sum(-1)
 
@@ -297,6 +314,9 @@ def ellipse(x: torch.Tensor, center: Center2 = (0.0, 0.0), a: float = 1.0, b: fl
     >>> ellipse(torch.tensor([[2.0, 0.0], [0.0, 1.0], [0.0, 0.0]]), a=2.0, b=1.0)
     tensor([0., 0., 1.])
     """
+    check_param(center, "center", "ellipse")
+    check_param(a, "a", "ellipse", positive=True)
+    check_param(b, "b", "ellipse", positive=True)
     d = _plane_offset(x, center, "center")
     return 1.0 - (d[..., 0] / a) ** 2 - (d[..., 1] / b) ** 2
 
@@ -324,6 +344,9 @@ def rectangle(x: torch.Tensor, vertex: Center2 = (0.0, 0.0), dx: float = 1.0, dy
     >>> rectangle(torch.tensor([[0.5, 0.5], [1.0, 0.5], [2.0, 0.5]]), dx=1.0, dy=1.0)
     tensor([ 0.1464,  0.0000, -3.7656])
     """
+    check_param(vertex, "vertex", "rectangle")
+    check_param(dx, "dx", "rectangle", positive=True)
+    check_param(dy, "dy", "rectangle", positive=True)
     d = _plane_offset(x, vertex, "vertex")
     sx = d[..., 0] * (dx - d[..., 0])
     sy = d[..., 1] * (dy - d[..., 1])
@@ -331,6 +354,10 @@ def rectangle(x: torch.Tensor, vertex: Center2 = (0.0, 0.0), dx: float = 1.0, dy
 
 
 def _ell_cyl(x: torch.Tensor, center: Center, a: float, b: float, axis: int) -> torch.Tensor:
+    fn = "ellCyl" + "XYZ"[axis]
+    check_param(center, "center", fn)
+    check_param(a, "a", fn, positive=True)
+    check_param(b, "b", fn, positive=True)
     d = x - vec(center, x)
     i, j = [k for k in range(3) if k != axis]
     return 1.0 - (d[..., i] / a) ** 2 - (d[..., j] / b) ** 2
@@ -405,7 +432,13 @@ def ellCylZ(x: torch.Tensor, center: Center = (0.0, 0.0, 0.0), a: float = 1.0, b
     return _ell_cyl(x, center, a, b, 2)
 
 
-def _ell_cone(x: torch.Tensor, center: Center, a: float, b: float, axis: int) -> torch.Tensor:
+def _ell_cone(x: torch.Tensor, center: Center, a: float, b: float, axis: int, fn: str) -> torch.Tensor:
+    check_param(center, "center", fn)
+    if fn.startswith("ellCone"):
+        check_param(a, "a", fn, positive=True)
+        check_param(b, "b", fn, positive=True)
+    else:
+        check_param(a, "R", fn, positive=True)
     d = x - vec(center, x)
     i, j = [k for k in range(3) if k != axis]
     return d[..., axis] ** 2 - (d[..., i] / a) ** 2 - (d[..., j] / b) ** 2
@@ -434,7 +467,7 @@ def coneX(x: torch.Tensor, center: Center = (0.0, 0.0, 0.0), R: float = 1.0) -> 
     >>> coneX(torch.tensor([[2.0, 1.0, 0.0], [-2.0, 0.0, 1.0], [1.0, 0.0, 0.0]]), R=0.5)
     tensor([0., 0., 1.])
     """
-    return _ell_cone(x, center, R, R, 0)
+    return _ell_cone(x, center, R, R, 0, "coneX")
 
 
 @frep
@@ -457,7 +490,7 @@ def coneY(x: torch.Tensor, center: Center = (0.0, 0.0, 0.0), R: float = 1.0) -> 
     >>> coneY(torch.tensor([[1.0, 2.0, 0.0], [1.0, 0.0, 0.0]]), R=0.5)
     tensor([ 0., -4.])
     """
-    return _ell_cone(x, center, R, R, 1)
+    return _ell_cone(x, center, R, R, 1, "coneY")
 
 
 @frep
@@ -480,7 +513,7 @@ def coneZ(x: torch.Tensor, center: Center = (0.0, 0.0, 0.0), R: float = 1.0) -> 
     >>> coneZ(torch.tensor([[0.0, 1.0, 2.0], [0.0, 0.0, 3.0]]), R=0.5)
     tensor([0., 9.])
     """
-    return _ell_cone(x, center, R, R, 2)
+    return _ell_cone(x, center, R, R, 2, "coneZ")
 
 
 @frep
@@ -503,7 +536,7 @@ def ellConeX(x: torch.Tensor, center: Center = (0.0, 0.0, 0.0), a: float = 1.0, 
     >>> ellConeX(torch.tensor([[1.0, 2.0, 0.0], [1.0, 0.0, 1.0]]), a=2.0, b=1.0)
     tensor([0., 0.])
     """
-    return _ell_cone(x, center, a, b, 0)
+    return _ell_cone(x, center, a, b, 0, "ellConeX")
 
 
 @frep
@@ -526,7 +559,7 @@ def ellConeY(x: torch.Tensor, center: Center = (0.0, 0.0, 0.0), a: float = 1.0, 
     >>> ellConeY(torch.tensor([[2.0, 1.0, 0.0], [0.0, 1.0, 0.0]]), a=2.0, b=1.0)
     tensor([0., 1.])
     """
-    return _ell_cone(x, center, a, b, 1)
+    return _ell_cone(x, center, a, b, 1, "ellConeY")
 
 
 @frep
@@ -549,7 +582,7 @@ def ellConeZ(x: torch.Tensor, center: Center = (0.0, 0.0, 0.0), a: float = 1.0, 
     >>> ellConeZ(torch.tensor([[2.0, 0.0, -1.0], [0.0, 2.0, 1.0]]), a=2.0, b=1.0)
     tensor([ 0., -3.])
     """
-    return _ell_cone(x, center, a, b, 2)
+    return _ell_cone(x, center, a, b, 2, "ellConeZ")
 
 
 def _pow0(t: torch.Tensor, p: float | torch.Tensor) -> torch.Tensor:
@@ -604,6 +637,9 @@ def superEll(
     >>> superEll(p, a=2.0, b=1.0, c=1.0, s1=0.5, s2=0.5)
     tensor([0.0000, 0.0000, 0.8125])
     """
+    check_param(center, "center", "superEll")
+    for name, value in (("a", a), ("b", b), ("c", c), ("s1", s1), ("s2", s2)):
+        check_param(value, name, "superEll", positive=True)
     d = x - vec(center, x)
     return _super_ellipsoid(d[..., 0] / a, d[..., 1] / b, d[..., 2] / c, s1, s2)
 
@@ -651,6 +687,10 @@ def superQuadric(
     >>> f.round(decimals=12)
     tensor([0., 1.], dtype=torch.float64)
     """
+    check_param(e, "e", "superQuadric", positive=True)
+    check_param(a, "a", "superQuadric", positive=True)
+    check_param(r, "r", "superQuadric")
+    check_param(t, "t", "superQuadric")
     ev = vec(e, x, n=2, name="e")
     av = vec(a, x, name="a")
     q = _euler_local(x, r, t)
@@ -712,6 +752,9 @@ def blobby(x: torch.Tensor, x0: Values, y0: Values, z0: Values, a: Values, b: Va
     >>> blobby(p, x0=[0.0], y0=[0.0], z0=[0.0], a=[1.0], b=[1.0], T=0.5)
     tensor([0.5000, 0.0000], dtype=torch.float64)
     """
+    for name, value in (("x0", x0), ("y0", y0), ("z0", z0), ("b", b), ("T", T)):
+        check_param(value, name, "blobby")
+    check_param(a, "a", "blobby", positive=True)
     x0, y0, z0, a, b = _per_center(x, x0=x0, y0=y0, z0=z0, a=a, b=b)
     return (b * torch.exp(-a * _sq_dist_to_centers(x, x0, y0, z0))).sum(-1) - T
 
@@ -742,6 +785,9 @@ def metaBall(x: torch.Tensor, x0: Values, y0: Values, z0: Values, b: Values, d: 
     >>> metaBall(p, x0=[0.0], y0=[0.0], z0=[0.0], b=[1.0], d=[1.0], T=0.375)
     tensor([ 0.6250,  0.0000, -0.3750], dtype=torch.float64)
     """
+    for name, value in (("x0", x0), ("y0", y0), ("z0", z0), ("b", b), ("T", T)):
+        check_param(value, name, "metaBall")
+    check_param(d, "d", "metaBall", positive=True)
     x0, y0, z0, b, d = _per_center(x, x0=x0, y0=y0, z0=z0, b=b, d=d)
     r2 = _sq_dist_to_centers(x, x0, y0, z0)
     r = safe_sqrt(r2)
@@ -775,6 +821,9 @@ def soft(x: torch.Tensor, x0: Values, y0: Values, z0: Values, d: Values, T: floa
     >>> soft(p, x0=[0.0], y0=[0.0], z0=[0.0], d=[1.0], T=0.5)
     tensor([ 0.5000, -0.5000, -0.5000], dtype=torch.float64)
     """
+    for name, value in (("x0", x0), ("y0", y0), ("z0", z0), ("T", T)):
+        check_param(value, name, "soft")
+    check_param(d, "d", "soft", positive=True)
     x0, y0, z0, d = _per_center(x, x0=x0, y0=y0, z0=z0, d=d)
     q = _sq_dist_to_centers(x, x0, y0, z0) / (d * d)  # (r/d)^2
     w = 1.0 - 22.0 / 9.0 * q + 17.0 / 9.0 * q * q - 4.0 / 9.0 * q * q * q
@@ -806,6 +855,8 @@ def noiseG(x: torch.Tensor, amp: float = 1.0, freq: float = 1.0, phase: float = 
     >>> noiseG(torch.tensor([[0.0, 1.0, 2.0], [math.pi / 2, math.pi / 2, math.pi / 2]]), amp=1.0, freq=1.0, phase=0.0)
     tensor([0.0000, 5.6855])
     """
+    for name, value in (("amp", amp), ("freq", freq), ("phase", phase)):
+        check_param(value, name, "noiseG")
     sx, sy, sz = (torch.sin(freq * x[..., i]) for i in range(3))
 
     def series(coordinate: torch.Tensor, coupled_sine: torch.Tensor) -> torch.Tensor:

@@ -22,7 +22,7 @@ from typing import Any
 
 import torch
 
-from ._array import check_points, frep, safe_sqrt, vec
+from ._array import check_param, check_points, frep, param_array, safe_sqrt, shown, vec
 
 Vector = tuple[float, float, float] | torch.Tensor
 Number = float | torch.Tensor
@@ -65,6 +65,24 @@ def _points(x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     return x[..., 0], x[..., 1], x[..., 2]
 
 
+def _distinct(fn: str, names: tuple[str, str], t1: Number, t2: Number) -> None:
+    """ValueError naming ``fn``'s two arguments when they are equal (a linear ramp over no length)."""
+    for name, value in zip(names, (t1, t2)):
+        check_param(value, name, fn)
+    a, b = param_array(t1, names[0], fn), param_array(t2, names[1], fn)
+    if a is not None and b is not None and (a == b).any():
+        raise ValueError(f"{fn}: {names[0]} and {names[1]} must differ, got {shown(t1)!r} and {shown(t2)!r}")
+
+
+def _same_sign(fn: str, s1: Number, s2: Number) -> None:
+    """ValueError unless the taper scales s1, s2 are nonzero with one sign (s(t) never crosses 0)."""
+    check_param(s1, "s1", fn, nonzero=True)
+    check_param(s2, "s2", fn, nonzero=True)
+    a, b = param_array(s1, "s1", fn), param_array(s2, "s2", fn)
+    if a is not None and b is not None and not (a * b > 0).all():
+        raise ValueError(f"{fn}: s1 and s2 must be nonzero with the same sign, got {shown(s1)!r} and {shown(s2)!r}")
+
+
 def _rotate_pair(u: torch.Tensor, v: torch.Tensor, theta: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """Rotate the (u, v) coordinates by -theta: the solid turns by +theta from u towards v."""
     c, s = torch.cos(theta), torch.sin(theta)
@@ -91,6 +109,7 @@ def translate(x: torch.Tensor, offset: Vector) -> torch.Tensor:
     tensor([[0., 1., 2.]])
     """
     check_points(x)
+    check_param(offset, "offset", "translate")
     return x - vec(offset, x, name="offset")
 
 
@@ -114,6 +133,8 @@ def shift3D(x: torch.Tensor, dx: Number = 0.0, dy: Number = 0.0, dz: Number = 0.
     tensor([[0., 2., 4.]])
     """
     px, py, pz = _points(x)
+    for name, value in (("dx", dx), ("dy", dy), ("dz", dz)):
+        check_param(value, name, "shift3D")
     return _stack(px - dx, py - dy, pz - dz)
 
 
@@ -124,7 +145,7 @@ def scale(x: torch.Tensor, factor: Number) -> torch.Tensor:
     Parameters
     ----------
     x : (..., 3) points.
-    factor : scale factor (> 0).
+    factor : scale factor (non-zero; a negative factor also mirrors the solid through the origin).
 
     Returns
     -------
@@ -137,6 +158,7 @@ def scale(x: torch.Tensor, factor: Number) -> torch.Tensor:
     tensor([[1., 2., 3.]])
     """
     check_points(x)
+    check_param(factor, "factor", "scale", nonzero=True)
     return x / _num(factor, x)[..., None]
 
 
@@ -160,6 +182,8 @@ def scale3D(x: torch.Tensor, sx: Number = 1.0, sy: Number = 1.0, sz: Number = 1.
     tensor([[1.0000, 0.5000, 4.0000]])
     """
     px, py, pz = _points(x)
+    for name, value in (("sx", sx), ("sy", sy), ("sz", sz)):
+        check_param(value, name, "scale3D", nonzero=True)
     return _stack(px / sx, py / sy, pz / sz)
 
 
@@ -186,6 +210,9 @@ def stretch3D(
     tensor([[2., 1., 1.]])
     """
     px, py, pz = _points(x)
+    check_param(x0, "x0", "stretch3D")
+    for name, value in (("sx", sx), ("sy", sy), ("sz", sz)):
+        check_param(value, name, "stretch3D", nonzero=True)
     c = vec(x0, x, name="x0")
     return _stack(
         c[..., 0] + (px - c[..., 0]) / sx, c[..., 1] + (py - c[..., 1]) / sy, c[..., 2] + (pz - c[..., 2]) / sz
@@ -215,6 +242,7 @@ def rotate3DX(x: torch.Tensor, theta: Number) -> torch.Tensor:
     tensor([[1., 1., 0.]], dtype=torch.float64)
     """
     px, py, pz = _points(x)
+    check_param(theta, "theta", "rotate3DX")
     y2, z2 = _rotate_pair(py, pz, _num(theta, x))
     return _stack(px, y2, z2)
 
@@ -241,6 +269,7 @@ def rotate3DY(x: torch.Tensor, theta: Number) -> torch.Tensor:
     tensor([[0., 0., 1.]], dtype=torch.float64)
     """
     px, py, pz = _points(x)
+    check_param(theta, "theta", "rotate3DY")
     z2, x2 = _rotate_pair(pz, px, _num(theta, x))
     return _stack(x2, py, z2)
 
@@ -268,6 +297,7 @@ def rotate3DZ(x: torch.Tensor, theta: Number) -> torch.Tensor:
     tensor([[1., 0., 0.]], dtype=torch.float64)
     """
     px, py, pz = _points(x)
+    check_param(theta, "theta", "rotate3DZ")
     x2, y2 = _rotate_pair(px, py, _num(theta, x))
     return _stack(x2, y2, pz)
 
@@ -302,6 +332,8 @@ def rotate(x: torch.Tensor, angle: Number, axis: Vector = (0.0, 0.0, 1.0)) -> to
     tensor([[0., 1., 0.]], dtype=torch.float64)
     """
     px, py, pz = _points(x)
+    check_param(angle, "angle", "rotate")
+    check_param(axis, "axis", "rotate", nonzero=True)
     n = _unit(vec(axis, x, name="axis"))
     nx, ny, nz = n[..., 0], n[..., 1], n[..., 2]
     a = _num(angle, x)
@@ -337,6 +369,7 @@ def orient(x: torch.Tensor, direction: Vector) -> torch.Tensor:
     tensor([[0., 0., 2.]], dtype=torch.float64)
     """
     px, py, pz = _points(x)
+    check_param(direction, "direction", "orient", nonzero=True)
     d = _unit(vec(direction, x, name="direction"))
     # R maps e_z to d; R^T x = c x - v x x + v (v . x) / (1 + c), v = e_z x d, c = e_z . d
     vx, vy, c = -d[..., 1], d[..., 0], d[..., 2]
@@ -382,6 +415,9 @@ def twistX(x: torch.Tensor, x1: Number, x2: Number, theta1: Number, theta2: Numb
     tensor([[1., 1., 0.]], dtype=torch.float64)
     """
     px, py, pz = _points(x)
+    _distinct("twistX", ("x1", "x2"), x1, x2)
+    check_param(theta1, "theta1", "twistX")
+    check_param(theta2, "theta2", "twistX")
     y2, z2 = _rotate_pair(py, pz, _twist_angle(px, x1, x2, theta1, theta2))
     return _stack(px, y2, z2)
 
@@ -411,6 +447,9 @@ def twistY(x: torch.Tensor, y1: Number, y2: Number, theta1: Number, theta2: Numb
     tensor([[-1.,  2.,  0.]], dtype=torch.float64)
     """
     px, py, pz = _points(x)
+    _distinct("twistY", ("y1", "y2"), y1, y2)
+    check_param(theta1, "theta1", "twistY")
+    check_param(theta2, "theta2", "twistY")
     z2, x2 = _rotate_pair(pz, px, _twist_angle(py, y1, y2, theta1, theta2))
     return _stack(x2, py, z2)
 
@@ -441,6 +480,9 @@ def twistZ(x: torch.Tensor, z1: Number, z2: Number, theta1: Number, theta2: Numb
     tensor([[1., 0., 1.]], dtype=torch.float64)
     """
     px, py, pz = _points(x)
+    _distinct("twistZ", ("z1", "z2"), z1, z2)
+    check_param(theta1, "theta1", "twistZ")
+    check_param(theta2, "theta2", "twistZ")
     x2, y2 = _rotate_pair(px, py, _twist_angle(pz, z1, z2, theta1, theta2))
     return _stack(x2, y2, pz)
 
@@ -461,8 +503,8 @@ def taperX(x: torch.Tensor, x1: Number, x2: Number, s1: Number, s2: Number) -> t
     Parameters
     ----------
     x : (..., 3) points.
-    x1, x2 : abscissas bounding the linear part (x1 < x2).
-    s1, s2 : scale factors (non-zero) at x1 and x2.
+    x1, x2 : abscissas bounding the linear part (x1 != x2; with x1 > x2 the roles swap).
+    s1, s2 : scale factors (non-zero, of one sign, so that s never crosses 0) at x1 and x2.
 
     Returns
     -------
@@ -476,6 +518,8 @@ def taperX(x: torch.Tensor, x1: Number, x2: Number, s1: Number, s2: Number) -> t
             [2.0000, 2.0000, 2.0000]])
     """
     px, py, pz = _points(x)
+    _distinct("taperX", ("x1", "x2"), x1, x2)
+    _same_sign("taperX", s1, s2)
     s = _taper_scale(px, x1, x2, s1, s2)
     return _stack(px, py / s, pz / s)
 
@@ -489,8 +533,8 @@ def taperY(x: torch.Tensor, y1: Number, y2: Number, s1: Number, s2: Number) -> t
     Parameters
     ----------
     x : (..., 3) points.
-    y1, y2 : ordinates bounding the linear part (y1 < y2).
-    s1, s2 : scale factors (non-zero) at y1 and y2.
+    y1, y2 : ordinates bounding the linear part (y1 != y2; with y1 > y2 the roles swap).
+    s1, s2 : scale factors (non-zero, of one sign, so that s never crosses 0) at y1 and y2.
 
     Returns
     -------
@@ -503,6 +547,8 @@ def taperY(x: torch.Tensor, y1: Number, y2: Number, s1: Number, s2: Number) -> t
     tensor([[2., 1., 2.]])
     """
     px, py, pz = _points(x)
+    _distinct("taperY", ("y1", "y2"), y1, y2)
+    _same_sign("taperY", s1, s2)
     s = _taper_scale(py, y1, y2, s1, s2)
     return _stack(px / s, py, pz / s)
 
@@ -516,8 +562,8 @@ def taperZ(x: torch.Tensor, z1: Number, z2: Number, s1: Number, s2: Number) -> t
     Parameters
     ----------
     x : (..., 3) points.
-    z1, z2 : heights bounding the linear part (z1 < z2).
-    s1, s2 : scale factors (non-zero) at z1 and z2.
+    z1, z2 : heights bounding the linear part (z1 != z2; with z1 > z2 the roles swap).
+    s1, s2 : scale factors (non-zero, of one sign, so that s never crosses 0) at z1 and z2.
 
     Returns
     -------
@@ -530,6 +576,8 @@ def taperZ(x: torch.Tensor, z1: Number, z2: Number, s1: Number, s2: Number) -> t
     tensor([[ 0.5000,  0.5000, -1.0000]])
     """
     px, py, pz = _points(x)
+    _distinct("taperZ", ("z1", "z2"), z1, z2)
+    _same_sign("taperZ", s1, s2)
     s = _taper_scale(pz, z1, z2, s1, s2)
     return _stack(px / s, py / s, pz)
 
@@ -572,6 +620,7 @@ def bend(x: torch.Tensor, k: Number) -> torch.Tensor:
     tensor([[1.5708, 0.0000, 0.5000]], dtype=torch.float64)
     """
     px, py, pz = _points(x)
+    check_param(k, "k", "bend")
     k = _num(k, x)
     b = 1.0 - k * py
     a = k * px

@@ -15,6 +15,7 @@ from contextlib import contextmanager
 import numpy as np
 import pytest
 import torch
+from rounding import float32_error_bound
 from torch._dynamo.utils import counters
 
 from pyfrep_core import Param, curvatures, grad, hessian, model, param_grad, polygonize, sphere, value_and_grad
@@ -22,20 +23,13 @@ from pyfrep_core.compiled import CompiledModel, compiled, first_order, warm_up
 from pyfrep_core.models import ellipse, fig1_part, microstructure, pawn, schwarz_d
 from pyfrep_core.sensitivity import param_derivative
 
-EPS32 = float(torch.finfo(torch.float32).eps)
-
-# (model, parameter values other than the defaults, magnitude of its largest intermediate term)
-# The magnitude sets the float32 tolerance: fusion reorders operations, so values differ from
-# eager by a few ulp of the terms that are combined.  That is the value itself (order 1) except
-# for the pawn, whose collar ellipsoid (c = 0.07) reaches -(1.65 / 0.07)^2 ~ -560 in its box and
-# is cancelled by the R-unions down to values of order 1, and the microstructure, whose slabs
-# sin(scale x) take arguments up to 7 * 10.5 ~ 75 (an ulp of the argument moves the sine as much).
+# (model, parameter values other than the defaults)
 CASES = {
-    "fig1_part": (fig1_part, {"r": 0.35}, 1.0),
-    "schwarz_d": (schwarz_d, {"c": 0.3}, 1.0),
-    "pawn": (pawn, {"head_radius": 0.35, "neck_radius": 0.2, "base_radius": 0.5, "collar_radius": 0.3}, 600.0),
-    "microstructure": (microstructure, {"scale1": 7.0, "scale2": 4.0, "freq1": 0.6, "freq2": 0.9}, 75.0),
-    "ellipse": (ellipse, {"a": 4.0, "b": 2.5}, 1.0),
+    "fig1_part": (fig1_part, {"r": 0.35}),
+    "schwarz_d": (schwarz_d, {"c": 0.3}),
+    "pawn": (pawn, {"head_radius": 0.35, "neck_radius": 0.2, "base_radius": 0.5, "collar_radius": 0.3}),
+    "microstructure": (microstructure, {"scale1": 7.0, "scale2": 4.0, "freq1": 0.6, "freq2": 0.9}),
+    "ellipse": (ellipse, {"a": 4.0, "b": 2.5}),
 }
 
 
@@ -84,7 +78,7 @@ def edge_counts(faces):
 @pytest.fixture(scope="module")
 def fast():
     """name -> compiled model, for every model of CASES, and the test ball."""
-    out = {name: compiled(m) for name, (m, _, _) in CASES.items()}
+    out = {name: compiled(m) for name, (m, _) in CASES.items()}
     out["ball"] = compiled(ball)
     return out
 
@@ -94,7 +88,7 @@ def fast():
 
 @pytest.mark.parametrize("name", list(CASES))
 def test_values_agree_with_eager_in_float64_numpy_and_torch(fast, name):
-    m, params, _ = CASES[name]
+    m, params = CASES[name]
     x = in_bounds(m, 3000, seed=1)
     with kernel_calls(fast[name]) as sizes:
         got = fast[name](x, **params)
@@ -110,16 +104,30 @@ def test_values_agree_with_eager_in_float64_numpy_and_torch(fast, name):
 
 
 @pytest.mark.parametrize("name", list(CASES))
-def test_values_agree_with_eager_in_float32_to_a_few_ulp(fast, name):
-    m, params, magnitude = CASES[name]
+def test_values_in_float32_are_within_the_rounding_error_bound_of_the_float64_truth(fast, name):
+    """Compiled and eager float32 both err from the float64 value by less than the first-order bound.
+
+    Fusion reorders and contracts operations, so compiled and eager float32 values need not agree
+    bit for bit, and how far they differ depends on the machine's vector code.  What does not
+    depend on the machine is the rounding-error bound of the program at each point (tests/rounding.py),
+    which is large exactly where the model cancels big intermediate terms.
+    """
+    m, params = CASES[name]
     x = torch.as_tensor(in_bounds(m, 3000, seed=2), dtype=torch.float32)
     with kernel_calls(fast[name]) as sizes:
         got = fast[name](x, **params)
     assert sizes == [3000]
-    want = m(x, **params)
     assert got.dtype == torch.float32 and got.shape == (3000,)
-    scale = torch.maximum(want.abs(), torch.tensor(magnitude))
-    assert ((got - want).abs() <= 8 * EPS32 * scale).all(), (got - want).abs().max()
+    truth = m(x.double(), **params)
+    bound = float32_error_bound(m, x, **params)
+    for label, value in (("compiled", got), ("eager", m(x, **params))):
+        err = (value.double() - truth).abs()
+        worst = int((err / bound).argmax())
+        assert (err <= bound).all(), (
+            f"{label}: error {err[worst]:.3g} > bound {bound[worst]:.3g} at {x[worst].tolist()}"
+        )
+    # the bound is a real constraint, not a blanket: a relative error of 1e-4 exceeds it somewhere
+    assert ((truth * 1e-4).abs() > bound).any()
 
 
 def test_point_layouts_batch_shapes_and_parameter_kinds_give_the_eager_values(fast):
@@ -148,7 +156,7 @@ def test_point_layouts_batch_shapes_and_parameter_kinds_give_the_eager_values(fa
 
 @pytest.mark.parametrize("name", ["fig1_part", "schwarz_d", "ellipse"])  # pawn, microstructure: 5-7 s more to compile
 def test_value_and_grad_through_the_kernel_equals_eager(fast, name):
-    m, params, _ = CASES[name]
+    m, params = CASES[name]
     x = in_bounds(m, 3000, seed=4)
     with kernel_calls(fast[name]) as sizes:
         value, gradient = value_and_grad(functools.partial(fast[name], **params), x)

@@ -5,9 +5,9 @@ PY := $(VENV)/bin/python
 PIP := $(PY) -m pip -q --disable-pip-version-check
 STAMP := $(VENV)/.installed
 PORT ?= 8866
-# Quick mode for heavy notebook/test steps; `PYFREP_QUICK=0 make test` runs the paper's settings.
-PYFREP_QUICK ?= 1
-export PYFREP_QUICK
+# Quick mode for heavy notebook/test steps is for `make test` only (`make run` gives users the
+# paper's settings); `PYFREP_QUICK=0 make test` runs the tests with the paper's settings.
+test: export PYFREP_QUICK ?= 1
 
 .PHONY: setup run test lint browser bench clean
 

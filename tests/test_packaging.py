@@ -1,6 +1,8 @@
 """environment.yml and pyproject.toml list the same dependencies; the two commands are wired."""
 
+import os
 import re
+import subprocess
 import tomllib
 from pathlib import Path
 
@@ -32,3 +34,34 @@ def test_ci_runs_make_test_and_readme_shows_both_commands():
     assert "make test" in (ROOT / ".ci" / "run").read_text()
     readme = (ROOT / "README.md").read_text()
     assert "make run" in readme and "make test" in readme
+
+
+def _fake_venv(tmp_path):
+    """A venv whose install stamp is current and whose voila/pytest/ruff only print PYFREP_QUICK."""
+    venv = tmp_path / "venv"
+    (venv / "bin").mkdir(parents=True)
+    for tool in ("voila", "pytest", "ruff", "python"):
+        script = venv / "bin" / tool
+        script.write_text('#!/bin/sh\necho "PYFREP_QUICK=[${PYFREP_QUICK}]"\n')
+        script.chmod(0o755)
+    (venv / ".installed").touch()
+    return venv
+
+
+def test_make_run_gives_users_the_full_settings_and_make_test_the_quick_ones(tmp_path):
+    env = {k: v for k, v in os.environ.items() if k != "PYFREP_QUICK"}
+    venv = _fake_venv(tmp_path)
+
+    def quick_mode(target):
+        out = subprocess.run(
+            ["make", "-s", "-C", str(ROOT), target, f"VENV={venv}"],
+            env=env,
+            capture_output=True,
+            text=True,
+            timeout=120,
+        ).stdout
+        return set(re.findall(r"PYFREP_QUICK=\[(\d*)\]", out))
+
+    assert quick_mode("run") == {""}
+    assert quick_mode("lint") == {""}
+    assert quick_mode("test") == {"1"}

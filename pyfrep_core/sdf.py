@@ -32,7 +32,7 @@ from typing import Any
 
 import torch
 
-from ._array import as_tensor, check_points, frep, safe_sqrt, vec
+from ._array import as_tensor, check_param, check_points, frep, param_array, safe_sqrt, shown, vec
 
 Vector = tuple[float, float, float] | torch.Tensor
 Scalar = float | torch.Tensor
@@ -142,6 +142,15 @@ def _segment_frame(x: torch.Tensor, a: Any, b: Any) -> tuple[torch.Tensor, torch
     return rho, h, length
 
 
+def _distinct_points(a: Any, b: Any, fn: str) -> None:
+    """ValueError naming ``fn``'s end points ``a``, ``b`` when they coincide (no axis: 0/0)."""
+    check_param(a, "a", fn)
+    check_param(b, "b", fn)
+    pa, pb = param_array(a, "a", fn), param_array(b, "b", fn)
+    if pa is not None and pb is not None and not (pb - pa != 0).reshape(-1, 3).any(-1).all():
+        raise ValueError(f"{fn}: a and b must be distinct points, got {shown(a)!r} and {shown(b)!r}")
+
+
 def _check_nonnegative(value: Any, name: str) -> None:
     if isinstance(value, int | float) and not value >= 0:
         raise ValueError(f"{name} must be >= 0, got {value!r}")
@@ -171,6 +180,8 @@ def sphere(x: torch.Tensor, center: Vector = (0.0, 0.0, 0.0), r: Scalar = 1.0) -
     tensor([ 1., -2.])
     """
     x = _points(x)
+    check_param(center, "center", "sdf.sphere")
+    check_param(r, "r", "sdf.sphere", positive=True)
     return r - _length(x - vec(center, x))
 
 
@@ -198,6 +209,8 @@ def plane(x: torch.Tensor, normal: Vector = (0.0, 0.0, 1.0), point: Vector = (0.
     tensor([ 1., -2.])
     """
     x = _points(x)
+    check_param(normal, "normal", "sdf.plane", nonzero=True)
+    check_param(point, "point", "sdf.plane")
     n = vec(normal, x, name="normal")
     return _dot(x - vec(point, x, name="point"), n) / _length(n)
 
@@ -223,6 +236,13 @@ def box(x: torch.Tensor, b: Vector | Scalar = (1.0, 1.0, 1.0), center: Vector = 
     tensor([ 1.0000, -1.4142, -3.4641])
     """
     x = _points(x)
+    check_param(b, "b", "sdf.box", positive=True)
+    check_param(center, "center", "sdf.box")
+    return _box_distance_of(x, b, center)
+
+
+def _box_distance_of(x: torch.Tensor, b: Any, center: Any) -> torch.Tensor:
+    """Signed distance (positive inside) of the box of half-extents ``b`` (>= 0, unchecked here)."""
     q = (x - vec(center, x)).abs() - _vec3(b, x, "b")
     return -_box_distance(q)
 
@@ -254,9 +274,12 @@ def block(
     tensor([ 0.5000, -1.0000])
     """
     x = _points(x)
+    check_param(vertex, "vertex", "sdf.block")
+    for name, value in (("dx", dx), ("dy", dy), ("dz", dz)):
+        check_param(value, name, "sdf.block", positive=True)
     dims = torch.broadcast_tensors(*(torch.as_tensor(v, dtype=x.dtype, device=x.device) for v in (dx, dy, dz)))
     half = 0.5 * torch.stack(dims, dim=-1)
-    return box(x, half, vec(vertex, x, name="vertex") + half)
+    return _box_distance_of(x, half, vec(vertex, x, name="vertex") + half)
 
 
 @frep
@@ -286,8 +309,14 @@ def roundedBox(
     >>> roundedBox(torch.tensor([[2.0, 2.0, 0.0], [0.0, 0.0, 0.0]]), b=1.0, radius=0.5)
     tensor([-0.9142,  1.5000])
     """
-    _check_nonnegative(radius, "radius")
-    return box(x, b, center) + radius
+    # b = 0 with radius > 0 is the ball of that radius; both 0 (on an axis) is flat
+    check_param(b, "b", "sdf.roundedBox", nonnegative=True)
+    check_param(radius, "radius", "sdf.roundedBox", nonnegative=True)
+    hb, hr = param_array(b, "b", "sdf.roundedBox"), param_array(radius, "radius", "sdf.roundedBox")
+    if hb is not None and hr is not None and not (hb + hr > 0).all():
+        raise ValueError(f"sdf.roundedBox: b + radius must be positive, got b={shown(b)!r}, radius={shown(radius)!r}")
+    check_param(center, "center", "sdf.roundedBox")
+    return _box_distance_of(_points(x), b, center) + radius
 
 
 @frep
@@ -318,6 +347,9 @@ def torus(
     tensor([ 0.2500, -0.7500])
     """
     x = _points(x)
+    check_param(R, "R", "sdf.torus", nonnegative=True)  # R = 0 is the ball of radius r; R < 0 is no torus
+    check_param(r, "r", "sdf.torus", positive=True)
+    check_param(center, "center", "sdf.torus")
     rho, h = _radial_axial(x - vec(center, x), _axis(axis))
     return r - safe_sqrt((rho - R) ** 2 + h * h)
 
@@ -414,6 +446,9 @@ def cylinder(
     tensor([-0.5000, -6.5000])
     """
     x = _points(x)
+    check_param(center, "center", "sdf.cylinder")
+    check_param(u, "u", "sdf.cylinder", nonzero=True)
+    check_param(r, "r", "sdf.cylinder", positive=True)
     w = x - vec(center, x)
     n = vec(u, x, name="u")
     n = n / _length(n).unsqueeze(-1)
@@ -422,6 +457,9 @@ def cylinder(
 
 def _cyl_axis(x: torch.Tensor, center: Vector, r: Scalar, axis: int) -> torch.Tensor:
     x = _points(x)
+    fn = "sdf.cylinder" + "XYZ"[axis]
+    check_param(center, "center", fn)
+    check_param(r, "r", fn, positive=True)
     rho, _ = _radial_axial(x - vec(center, x), axis)
     return r - rho
 
@@ -478,6 +516,9 @@ cylZ = cylinderZ  # noqa: N816 (the kernel's name for it)
 
 def _cone_axis(x: torch.Tensor, center: Vector, r: Scalar, axis: int) -> torch.Tensor:
     x = _points(x)
+    fn = "sdf.cone" + "XYZ"[axis]
+    check_param(center, "center", fn)
+    check_param(r, "r", fn, positive=True)
     rho, h = _radial_axial(x - vec(center, x), axis)
     # the cone's side makes the angle t = atan(r) with the axis; the distance to that line
     # in the (rho, |h|) half-plane is exact (the foot of the perpendicular never passes the apex)
@@ -560,6 +601,8 @@ def cappedCylinder(
     tensor([ 1.0000, -2.2361])
     """
     x = _points(x)
+    _distinct_points(a, b, "sdf.cappedCylinder")
+    check_param(radius, "radius", "sdf.cappedCylinder", positive=True)
     rho, h, length = _segment_frame(x, a, b)
     q = torch.stack(torch.broadcast_tensors(rho - radius, (h - 0.5 * length).abs() - 0.5 * length), dim=-1)
     return -_box_distance(q)
@@ -597,9 +640,13 @@ def cappedCone(
     >>> cappedCone(torch.tensor([[0.0, 0.0, 0.5], [0.0, 0.0, 3.0]]), a=(0, 0, 0), b=(0, 0, 1), ra=1.0, rb=0.5)
     tensor([ 0.5000, -2.0000])
     """
-    _check_nonnegative(ra, "ra")
-    _check_nonnegative(rb, "rb")
+    check_param(ra, "ra", "sdf.cappedCone", nonnegative=True)
+    check_param(rb, "rb", "sdf.cappedCone", nonnegative=True)
+    ha, hb = param_array(ra, "ra", "sdf.cappedCone"), param_array(rb, "rb", "sdf.cappedCone")
+    if ha is not None and hb is not None and not (ha + hb > 0).all():
+        raise ValueError(f"sdf.cappedCone: ra and rb must not both be 0, got {shown(ra)!r} and {shown(rb)!r}")
     x = _points(x)
+    _distinct_points(a, b, "sdf.cappedCone")
     rho, h, length = _segment_frame(x, a, b)
     dr = rb - ra
     side = safe_sqrt(dr * dr + length * length)
@@ -644,6 +691,14 @@ def frame(
     tensor([ 0.1000, -1.2728])
     """
     x = _points(x)
+    check_param(side_length, "side_length", "sdf.frame", positive=True)
+    check_param(thickness, "thickness", "sdf.frame", positive=True)
+    check_param(center, "center", "sdf.frame")
+    hs, ht = param_array(side_length, "side_length", "sdf.frame"), param_array(thickness, "thickness", "sdf.frame")
+    if hs is not None and ht is not None and not (ht < hs).all():
+        raise ValueError(
+            f"sdf.frame: thickness must be below side_length, got {shown(thickness)!r} and {shown(side_length)!r}"
+        )
     half = 0.5 * _vec3(side_length, x, "side_length") + 0.5 * thickness  # outer half-extents
     e = 0.5 * thickness
     p = (x - vec(center, x)).abs() - half
@@ -717,9 +772,8 @@ def negate(d: torch.Tensor) -> torch.Tensor:
     return -d
 
 
-def _smooth_weight(d1: torch.Tensor, d2: torch.Tensor, k: Scalar) -> tuple[torch.Tensor, Any]:
-    if isinstance(k, int | float) and not k >= 0:
-        raise ValueError(f"k must be >= 0, got {k!r}")
+def _smooth_weight(d1: torch.Tensor, d2: torch.Tensor, k: Scalar, fn: str) -> tuple[torch.Tensor, Any]:
+    check_param(k, "k", fn, nonnegative=True)  # k = 0 is the sharp operation
     if isinstance(k, torch.Tensor):
         k = k.clamp_min(torch.finfo(k.dtype if k.is_floating_point() else d1.dtype).tiny)
     else:
@@ -746,7 +800,7 @@ def smoothUnion(d1: torch.Tensor, d2: torch.Tensor, k: Scalar = 0.1) -> torch.Te
     >>> smoothUnion(torch.tensor([0.0, 1.0]), torch.tensor([0.0, -1.0]), k=0.4)
     tensor([0.1000, 1.0000])
     """
-    h, k = _smooth_weight(d1, d2, k)
+    h, k = _smooth_weight(d1, d2, k, "sdf.smoothUnion")
     return d2 + h * (d1 - d2) + k * h * (1.0 - h)
 
 
@@ -763,7 +817,7 @@ def smoothIntersection(d1: torch.Tensor, d2: torch.Tensor, k: Scalar = 0.1) -> t
     >>> smoothIntersection(torch.tensor([0.0, 1.0]), torch.tensor([0.0, -1.0]), k=0.4)
     tensor([-0.1000, -1.0000])
     """
-    h, k = _smooth_weight(d1, d2, k)
+    h, k = _smooth_weight(d1, d2, k, "sdf.smoothIntersection")
     return d1 + h * (d2 - d1) - k * h * (1.0 - h)
 
 
@@ -790,6 +844,7 @@ def dilate(d: torch.Tensor, r: Scalar) -> torch.Tensor:
     >>> dilate(torch.tensor([-0.5]), 0.5)
     tensor([0.])
     """
+    check_param(r, "r", "sdf.dilate")
     return d + r
 
 
@@ -803,6 +858,7 @@ def erode(d: torch.Tensor, r: Scalar) -> torch.Tensor:
     >>> erode(torch.tensor([0.5]), 0.5)
     tensor([0.])
     """
+    check_param(r, "r", "sdf.erode")
     return d - r
 
 
@@ -816,7 +872,7 @@ def shell(d: torch.Tensor, e: Scalar) -> torch.Tensor:
     Parameters
     ----------
     d : distances, any shape.
-    e : half-thickness (>= 0).
+    e : half-thickness (> 0; e = 0 would leave no solid).
 
     Examples
     --------
@@ -824,5 +880,5 @@ def shell(d: torch.Tensor, e: Scalar) -> torch.Tensor:
     >>> shell(torch.tensor([0.0, 0.1, -0.3]), 0.1)
     tensor([ 0.1000,  0.0000, -0.2000])
     """
-    _check_nonnegative(e, "e")
+    check_param(e, "e", "sdf.shell", positive=True)  # e = 0 leaves no solid (-|d| <= 0)
     return e - d.abs()

@@ -285,7 +285,7 @@ def test_smooth_operations_reduce_to_sharp_ones_far_from_the_junction():
     a = torch.zeros(3, dtype=torch.float64, requires_grad=True)
     sdf.smoothUnion(a, torch.zeros(3, dtype=torch.float64), torch.zeros(1, dtype=torch.float64)).sum().backward()
     assert torch.isfinite(a.grad).all()
-    with pytest.raises(ValueError, match="k must be >= 0"):
+    with pytest.raises(ValueError, match="sdf.smoothUnion: k must be nonnegative"):
         sdf.smoothUnion(d1, d2, -0.1)
 
 
@@ -301,7 +301,7 @@ def test_dilate_erode_exact_for_a_sphere_and_shell_boundary():
         np.testing.assert_allclose(sdf.shell(sdf.sphere(on, (0.1, 0, 0), 0.5), e), 0.0, atol=1e-14)
     rho = np.linalg.norm(x - [0.1, 0, 0], axis=1)  # exact distance to the hollow ball 0.5 - e <= rho <= 0.5 + e
     np.testing.assert_allclose(sdf.shell(s, e), np.minimum(rho - (0.5 - e), 0.5 + e - rho), atol=1e-14)
-    with pytest.raises(ValueError, match="e must be >= 0"):
+    with pytest.raises(ValueError, match="sdf.shell: e must be positive"):
         sdf.shell(s, -1.0)
 
 
@@ -329,7 +329,7 @@ def test_bad_input_raises_naming_it():
         sdf.sphere(np.zeros((5, 3)), center=(0, 0))
     with pytest.raises(ValueError, match="axis"):
         sdf.torus(np.zeros((5, 3)), axis="w")
-    with pytest.raises(ValueError, match="radius must be >= 0"):
+    with pytest.raises(ValueError, match="sdf.roundedBox: radius must be nonnegative"):
         sdf.roundedBox(np.zeros((5, 3)), 1.0, -0.1)
     with pytest.raises(TypeError, match="list"):
         sdf.capsule([[0.0, 0.0, 0.0]])

@@ -31,7 +31,7 @@ from collections.abc import Sequence
 
 import torch
 
-from ._array import check_points, frep
+from ._array import check_param, check_points, frep
 
 Period = float | Sequence[float] | torch.Tensor
 
@@ -44,9 +44,10 @@ __all__ = [
 ]
 
 
-def _period(period: Period, like: torch.Tensor) -> float | torch.Tensor:
-    """A float, or a tensor on ``like``'s device/dtype; plain numbers are checked (> 0, finite)."""
+def _period(period: Period, like: torch.Tensor, fn: str) -> float | torch.Tensor:
+    """A float, or a tensor on ``like``'s device/dtype; checked (> 0, finite; tensors outside tracing)."""
     if isinstance(period, torch.Tensor):
+        check_param(period, "period", fn, positive=True)  # a period 0 would divide by 0: NaN
         p = period.to(device=like.device, dtype=like.dtype)
         if p.ndim == 2 and like.ndim >= 2:  # a batch (B, 1) or (B, 3) against points (..., 3)
             p = p.reshape(p.shape[0], *([1] * (like.ndim - 1)), p.shape[-1])
@@ -88,7 +89,7 @@ def sawtooth(x: torch.Tensor, period: Period = 1.0) -> torch.Tensor:
     >>> sawtooth(torch.tensor([0.2, 0.7, -1.2, 2.5]), 1.0)
     tensor([ 0.2000, -0.3000, -0.2000, -0.5000])
     """
-    p = _period(period, x)
+    p = _period(period, x, "sawtooth")
     return torch.remainder(x + 0.5 * p, p) - 0.5 * p
 
 
@@ -114,6 +115,7 @@ def triangleWave(x: torch.Tensor, period: Period = 1.0) -> torch.Tensor:
     >>> triangleWave(torch.tensor([0.2, 0.7, -1.2, 2.5]), 1.0)
     tensor([0.2000, 0.3000, 0.2000, 0.5000])
     """
+    _period(period, x, "triangleWave")
     return torch.abs(sawtooth(x, period))
 
 
@@ -142,6 +144,7 @@ def rep(x: torch.Tensor, period: Period = 1.0) -> torch.Tensor:
     tensor([ True, False])
     """
     check_points(x)
+    _period(period, x, "rep")
     return sawtooth(x, period)
 
 
@@ -176,7 +179,7 @@ def sawtoothFourier(x: torch.Tensor, period: Period = 1.0, n_terms: int = 10) ->
     >>> torch.round(sawtoothFourier(x, 1.0, n_terms=200), decimals=3)  # 0 at the jump
     tensor([0.1000, 0.0000], dtype=torch.float64)
     """
-    p = _period(period, x)
+    p = _period(period, x, "sawtoothFourier")
     n = _n_terms(n_terms)
     theta = (2.0 * math.pi) * x / p
     total = torch.zeros_like(theta)
@@ -210,7 +213,7 @@ def triangleWaveFourier(x: torch.Tensor, period: Period = 1.0, n_terms: int = 10
     >>> triangleWaveFourier(x, 1.0, n_terms=500)
     tensor([0.2000, 0.4999], dtype=torch.float64)
     """
-    p = _period(period, x)
+    p = _period(period, x, "triangleWaveFourier")
     n = _n_terms(n_terms)
     theta = (2.0 * math.pi) * x / p
     total = torch.zeros_like(theta)

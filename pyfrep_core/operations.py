@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import torch
 
-from ._array import Scalar, frep, safe_sqrt
+from ._array import Scalar, check_param, frep, safe_sqrt
 
 __all__ = [
     "union",
@@ -163,6 +163,14 @@ def difference_min_max(f1: torch.Tensor, f2: torch.Tensor) -> torch.Tensor:
     return torch.minimum(f1, -f2)
 
 
+def _check_extents(fn: str, **extents: Scalar) -> None:
+    """a1, a2 (a3) divide the fields: 0 gives 0/0 = NaN on the surface f_i = 0 and a blend that jumps
+    there (the limit a -> 0 is a0 / (1 + ...) on f_i = 0 and 0 beside it), so they must be nonzero.
+    Their sign does not matter (they are squared); a0 = 0 is the plain operation."""
+    for name, value in extents.items():
+        check_param(value, name, fn, nonzero=name != "a0")
+
+
 def _blend_displacement(f1: torch.Tensor, f2: torch.Tensor, a0: Scalar, a1: Scalar, a2: Scalar) -> torch.Tensor:
     # Pasko's displacement a0 / (1 + (f1/a1)^2 + (f2/a2)^2): a0 at the edge f1 = f2 = 0, -> 0 away from it
     return a0 / (1.0 + (f1 / a1) ** 2 + (f2 / a2) ** 2)
@@ -193,6 +201,7 @@ def blendUnion(
     >>> blendUnion(torch.tensor([0.0, 3.0]), torch.tensor([0.0, -4.0]), a0=1.0, a1=1.0, a2=2.0)
     tensor([1.0000, 4.0714])
     """
+    _check_extents("blendUnion", a0=a0, a1=a1, a2=a2)
     return union(f1, f2) + _blend_displacement(f1, f2, a0, a1, a2)
 
 
@@ -221,6 +230,7 @@ def blendIntersection(
     >>> blendIntersection(torch.tensor([0.0, 3.0]), torch.tensor([0.0, 4.0]), a0=-1.0, a1=1.0, a2=1.0)
     tensor([-1.0000,  1.9615])
     """
+    _check_extents("blendIntersection", a0=a0, a1=a1, a2=a2)
     return intersection(f1, f2) + _blend_displacement(f1, f2, a0, a1, a2)
 
 
@@ -297,6 +307,7 @@ def boundBlendUnion(
     >>> boundBlendUnion(f1, f2, torch.tensor([-1.0, 1.0]), a0=1.0)  # outside f3: plain union (2); inside: blended
     tensor([2.0000, 2.0833])
     """
+    _check_extents("boundBlendUnion", a0=a0, a1=a1, a2=a2, a3=a3)
     return union(f1, f2) + _bounded_displacement(f1, f2, f3, a0, a1, a2, a3)
 
 
@@ -331,6 +342,7 @@ def boundBlendIntersection(
     >>> boundBlendIntersection(torch.tensor([0.0, 0.0]), torch.tensor([0.0, 0.0]), torch.tensor([-1.0, 1.0]), a0=-0.5)
     tensor([-0.5000, -0.5000])
     """
+    _check_extents("boundBlendIntersection", a0=a0, a1=a1, a2=a2, a3=a3)
     return intersection(f1, f2) + _bounded_displacement(f1, f2, f3, a0, a1, a2, a3)
 
 

@@ -5,6 +5,24 @@ legacy VTK (binary).  Normals survive OBJ, PLY and VTK; other point data (curvat
 residuals ...) survives PLY and VTK.  Point clouds: XYZ (plain text, ``x y z`` or
 ``x y z nx ny nz`` per line) and PLY.
 
+Reading is guarded, since a reader is a parser of whatever bytes it is given: the file's
+header is checked first (counts against the file's size: ``OFF\n`` is refused in
+microseconds where meshio's reader loops forever), then the reader runs in a worker process
+(``_io_worker.py``, kept for the next call) that is stopped after :data:`PARSE_SECONDS` plus
+one second per :data:`PARSE_BYTES_PER_SECOND` bytes.  Whatever goes wrong (a malformed,
+truncated or empty file, a reader that loops or crashes) comes back as a ValueError that
+names the path and the reason; the caller's process and threads are never touched (no
+signals), so the workbench's background threads can load files.
+
+Point-data names are written as they are, so they must be names the formats can hold: PLY and
+legacy VTK separate fields by spaces, and a (V, k) array is stored as the columns
+``name_0 .. name_{k-1}`` (joined again on reading).  :func:`save_mesh` refuses, naming the
+array, what would not read back as it was: names with spaces or control characters, the
+formats' own names (PLY ``x y z nx ny nz``, VTK ``Normals``), names that would merge on
+reading (``a_0`` and ``a_1`` beside each other read back as one array ``a``), arrays of
+more than two dimensions or of one column.  Rename them (``"mean curvature"`` ->
+``"mean_curvature"``); nothing is renamed silently.
+
 >>> import os, tempfile
 >>> from pyfrep_core import polygonize, sphere
 >>> m = polygonize(lambda x: sphere(x, r=1.0), ((-1.2,) * 3, (1.2,) * 3), 24)
@@ -17,14 +35,20 @@ True
 
 from __future__ import annotations
 
+import atexit
 import os
+import pickle
 import re
+import subprocess
+import sys
+import threading
 import warnings
 from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
 
+from ._io_worker import HEADER_BYTES, header_problem
 from .mesh import Mesh
 
 __all__ = [
@@ -40,6 +64,18 @@ __all__ = [
 MESH_FORMATS = {".stl": "stl", ".obj": "obj", ".ply": "ply", ".off": "off", ".vtk": "vtk"}
 POINT_FORMATS = {".xyz": "xyz", ".ply": "ply"}
 _NORMAL_KEYS = {"vtk": "Normals", "obj": "obj:vn"}  # PLY: the usual nx, ny, nz properties
+# names the formats use themselves: point data under them would not read back as point data
+_RESERVED = {"ply": {"x", "y", "z", "nx", "ny", "nz"}, "vtk": {"Normals", "normals"}}
+
+# A parse may take PARSE_SECONDS plus one second per PARSE_BYTES_PER_SECOND bytes of file.  The
+# slowest readers here (meshio's ASCII PLY and OBJ, Python per line) read 4-6 MB/s on a 2-core
+# AMD EPYC (10 MB files of 10^5 vertices); 100 kB/s leaves a margin of 40 for slower or busy
+# machines.  The fixed part covers the first VTK POLYDATA file (pyvista loads in the worker, ~1 s).
+PARSE_SECONDS = 10.0
+PARSE_BYTES_PER_SECOND = 1e5
+START_SECONDS = 120.0  # a worker's start (Python, numpy, meshio), not counted in the parse's time
+_KEEP_WORKERS = 2  # idle workers kept for the next calls (more start when threads read at once)
+_WORKER_SCRIPT = str(Path(__file__).with_name("_io_worker.py"))
 
 
 class PointCloud(NamedTuple):
@@ -58,33 +94,150 @@ def _format(path: str | os.PathLike, formats: dict[str, str], what: str) -> tupl
     return path, formats[ext]
 
 
-def _check_read(path: Path) -> None:
+def _check_read(path: Path, fmt: str, fn: str) -> int:
+    """The file's size, once it exists, is a regular file and its header is plausible for ``fmt``."""
     if not path.exists():
-        raise FileNotFoundError(f"no such file: {str(path)!r}")
+        raise FileNotFoundError(f"{fn}: no such file: {str(path)!r}")
     if not path.is_file():
-        raise ValueError(f"{str(path)!r} is not a file")
-    if path.stat().st_size == 0:
-        raise ValueError(f"{str(path)!r} is empty")
+        raise ValueError(f"{fn}: {str(path)!r} is not a file")
+    size = path.stat().st_size
+    if size == 0:
+        raise ValueError(f"{fn}: {str(path)!r} is empty")
+    with open(path, "rb") as f:
+        head = f.read(HEADER_BYTES)
+    problem = header_problem(fmt, head, size)
+    if problem is not None:
+        raise ValueError(f"{fn}: cannot read {str(path)!r} as {fmt.upper()}: {problem}")
+    return size
 
 
-def _split_columns(point_data: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-    """(V, k) arrays as k arrays ``name_0 .. name_{k-1}`` (PLY properties are scalars)."""
-    out = {}
-    for name, values in point_data.items():
-        arr = np.asarray(values)
-        if arr.dtype == bool:
-            arr = arr.astype(np.uint8)
-        if arr.ndim == 1:
-            out[name] = np.ascontiguousarray(arr)
-        else:
-            arr = arr.reshape(len(arr), -1)
-            for k in range(arr.shape[1]):
-                out[f"{name}_{k}"] = np.ascontiguousarray(arr[:, k])
-    return out
+class _Worker:
+    """One reader process (``_io_worker.py``) and its pipes; used by one thread at a time."""
+
+    def __init__(self) -> None:
+        env = dict(os.environ, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", MKL_NUM_THREADS="1")
+        env["PYTHONPATH"] = os.pathsep.join(p for p in sys.path if p)  # the caller's meshio, numpy
+        # -P: not the script's folder on sys.path (pyfrep_core/io.py would shadow the standard io)
+        self.proc = subprocess.Popen(
+            [sys.executable, "-P", _WORKER_SCRIPT],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.DEVNULL,
+            env=env,
+        )
+        self.started = False
+
+    def _receive(self, seconds: float) -> tuple | None:
+        """The worker's next answer; None (and the worker stopped) after ``seconds`` without one."""
+        box: list[tuple] = []
+
+        def receive() -> None:
+            try:
+                box.append(pickle.load(self.proc.stdout))
+            except Exception:  # EOF or a cut message: the process died
+                box.append(("died", self.proc.wait()))
+
+        reader = threading.Thread(target=receive, name="pyfrep-io-reader", daemon=True)
+        reader.start()
+        reader.join(seconds)
+        if reader.is_alive():
+            self.stop()
+            reader.join()
+            return None
+        return box[0]
+
+    def ask(self, fmt: str, path: str, seconds: float) -> tuple:
+        """("ok", raw) or ("error", message) or ("died", returncode) or ("timeout", seconds)."""
+        if not self.started:
+            answer = self._receive(START_SECONDS)
+            if answer is None or answer[0] != "ready":
+                raise OSError(f"the reader process ({sys.executable} {_WORKER_SCRIPT}) did not start: {answer}")
+            self.started = True
+        try:
+            pickle.dump((fmt, path), self.proc.stdin)
+            self.proc.stdin.flush()
+        except OSError:
+            return ("died", self.proc.wait())
+        answer = self._receive(seconds)
+        return ("timeout", seconds) if answer is None else answer
+
+    def stop(self) -> None:
+        self.proc.kill()
+        self.proc.wait()
+        for pipe in (self.proc.stdin, self.proc.stdout):
+            try:
+                pipe.close()
+            except OSError:
+                pass
+
+    def close(self) -> None:
+        """Let the worker go: it exits when its stdin closes."""
+        try:
+            self.proc.stdin.close()
+            self.proc.wait(timeout=5)
+        except (OSError, subprocess.TimeoutExpired):
+            self.proc.kill()
+            self.proc.wait()
+        self.proc.stdout.close()
+
+
+_idle_workers: list[_Worker] = []
+_idle_lock = threading.Lock()
+
+
+@atexit.register
+def _close_workers() -> None:
+    with _idle_lock:
+        workers = _idle_workers[:]
+        _idle_workers.clear()
+    for worker in workers:
+        worker.close()
+
+
+def _parse(fmt: str, path: Path, size: int, fn: str) -> dict[str, Any]:
+    """Read ``path`` in a worker process within the time its size allows; ValueError for whatever fails."""
+    seconds = PARSE_SECONDS + size / PARSE_BYTES_PER_SECOND
+    for attempt in range(2):
+        with _idle_lock:
+            worker = _idle_workers.pop() if _idle_workers else None
+        pooled = worker is not None and worker.proc.poll() is None
+        if worker is not None and not pooled:
+            worker.stop()  # ended from outside while idle
+        if not pooled:
+            try:
+                worker = _Worker()
+            except OSError as err:
+                raise OSError(f"{fn}: cannot start a reader process ({sys.executable}): {err}") from None
+        answer = worker.ask(fmt, str(path), seconds)
+        if answer[0] in ("ok", "error"):
+            with _idle_lock:
+                if len(_idle_workers) < _KEEP_WORKERS:
+                    _idle_workers.append(worker)
+                    worker = None
+            if worker is not None:
+                worker.close()
+            break
+        worker.stop()
+        if answer[0] == "died" and pooled and attempt == 0:
+            continue  # an idle worker that was ended from outside: once more with a fresh one
+        break
+    where = f"{fn}: cannot read {str(path)!r} as {fmt.upper()}"
+    if answer[0] == "ok":
+        return answer[1]
+    if answer[0] == "error":
+        raise ValueError(f"{where}: {answer[1]}")
+    if answer[0] == "timeout":
+        raise ValueError(
+            f"{where}: the reader did not finish within {seconds:.0f} s (for {size} bytes) and was stopped; "
+            "the file is malformed in a way that makes the reader loop"
+        )
+    code = answer[1]
+    how = f"signal {-code}" if code < 0 else f"exit status {code}"
+    raise ValueError(f"{where}: the reader process died ({how}) on this file")
 
 
 def _join_columns(point_data: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-    """Inverse of :func:`_split_columns`: ``name_0 .. name_{k-1}`` (k >= 2) back into one (V, k) array."""
+    """``name_0 .. name_{k-1}`` (k >= 2) back into one (V, k) array: how (V, k) point data is stored."""
     out = dict(point_data)
     groups: dict[str, list[int]] = {}
     for key in point_data:
@@ -97,6 +250,58 @@ def _join_columns(point_data: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     return out
 
 
+def _file_point_data(mesh: Mesh, fmt: str) -> dict[str, np.ndarray]:
+    """``mesh.point_data`` as the columns PLY / VTK store, once sure that they read back as they are.
+
+    A (V, k) array becomes ``name_0 .. name_{k-1}`` (VTK keeps 3-vectors whole); booleans are
+    stored as uint8, float16 as float32 and, in PLY (whose reader here knows no 8- and 16-bit
+    signed types), int8 / int16 / uint16 as int32 / uint32.
+    """
+    columns: dict[str, np.ndarray] = {}
+    for name, values in mesh.point_data.items():
+        where = f"save_mesh: point_data[{name!r}]"
+        if not isinstance(name, str):
+            raise TypeError(f"{where}: a point-data name must be a str, got {type(name).__name__}")
+        if not name or any(c.isspace() or not c.isprintable() for c in name):
+            hint = re.sub(r"\s+", "_", name.strip()) or "a name"
+            raise ValueError(
+                f"{where}: {fmt.upper()} separates fields by spaces, so a point-data name must be non-empty "
+                f"without spaces or control characters; got {name!r} (rename it, e.g. {hint!r})"
+            )
+        if name in _RESERVED[fmt]:
+            raise ValueError(
+                f"{where}: {name!r} is one of the names {fmt.upper()} uses itself "
+                f"({', '.join(sorted(_RESERVED[fmt]))}); rename it"
+            )
+        arr = np.asarray(values)
+        if arr.dtype.kind not in "biuf":
+            raise ValueError(f"{where}: {fmt.upper()} holds numbers (bool, int, float), got dtype {arr.dtype}")
+        wide = {np.dtype(np.float16): np.float32}
+        if fmt == "ply":
+            wide.update({np.dtype(np.int8): np.int32, np.dtype(np.int16): np.int32, np.dtype(np.uint16): np.uint32})
+        arr = arr.astype(np.uint8 if arr.dtype == bool else wide.get(arr.dtype, arr.dtype), copy=False)
+        if arr.ndim > 2 or (arr.ndim == 2 and arr.shape[1] < 2):
+            raise ValueError(
+                f"{where}: {fmt.upper()} stores (V,) and (V, k >= 2) arrays, got shape {arr.shape} "
+                "(reshape it to one of those)"
+            )
+        if arr.ndim == 1 or (fmt == "vtk" and arr.shape[1] == 3):
+            parts = {name: arr}
+        else:
+            parts = {f"{name}_{k}": arr[:, k] for k in range(arr.shape[1])}
+        for key, part in parts.items():
+            if key in columns or key in _RESERVED[fmt]:
+                raise ValueError(f"{where}: its column {key!r} would clash with another column of that name; rename it")
+            columns[key] = np.ascontiguousarray(part)
+    back = _join_columns(columns)
+    if set(back) != set(mesh.point_data):
+        raise ValueError(
+            f"save_mesh: point_data {sorted(mesh.point_data)} would read back from {fmt.upper()} as {sorted(back)} "
+            "(a (V, k) array is stored as the columns name_0 .. name_{k-1}, joined again on reading); rename them"
+        )
+    return columns
+
+
 def save_mesh(mesh: Mesh, path: str | os.PathLike) -> None:
     """Write ``mesh`` to ``path``; the format follows the extension (.stl .obj .ply .off .vtk).
 
@@ -105,31 +310,38 @@ def save_mesh(mesh: Mesh, path: str | os.PathLike) -> None:
     mesh : Mesh
     path : file name; STL is written binary (float32 coordinates), PLY and VTK binary
         (float64), OBJ and OFF as text with every digit of the float64 coordinates.
+        Normals are written to OBJ, PLY and VTK, other point data to PLY and VTK only
+        (under names that read back as they are: see the module's docstring).
 
     Raises
     ------
-    ValueError for an unknown extension (the message lists the supported ones) or an
-    empty mesh; TypeError when ``mesh`` is not a Mesh.
+    ValueError for an unknown extension (the message lists the supported ones), an empty
+    mesh, or point data PLY / VTK cannot hold under its name, shape or dtype (the message
+    names the array); TypeError when ``mesh`` is not a Mesh.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> import numpy as np
+    >>> tri = Mesh(np.eye(3), np.array([[0, 1, 2]]), point_data={"mean curvature": np.ones(3)})
+    >>> save_mesh(tri, os.path.join(tempfile.mkdtemp(), "tri.ply"))  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ValueError: save_mesh: point_data['mean curvature']: PLY separates fields by spaces, ... 'mean_curvature')
     """
     import meshio
 
     if not isinstance(mesh, Mesh):
-        raise TypeError(f"mesh must be a pyfrep_core Mesh, got {type(mesh).__name__}")
+        raise TypeError(f"save_mesh: mesh must be a pyfrep_core Mesh, got {type(mesh).__name__}")
     path, fmt = _format(path, MESH_FORMATS, "mesh")
     if mesh.is_empty():
-        raise ValueError(f"cannot save an empty mesh (no faces) to {str(path)!r}")
+        raise ValueError(f"save_mesh: cannot save an empty mesh (no faces) to {str(path)!r}")
     point_data: dict[str, np.ndarray] = {}
-    if fmt == "ply":
-        if mesh.normals is not None:
-            point_data.update(nx=mesh.normals[:, 0], ny=mesh.normals[:, 1], nz=mesh.normals[:, 2])
-        point_data.update(_split_columns(mesh.point_data))
-        point_data = {k: np.ascontiguousarray(v) for k, v in point_data.items()}
+    if fmt == "ply" and mesh.normals is not None:
+        point_data.update(nx=mesh.normals[:, 0].copy(), ny=mesh.normals[:, 1].copy(), nz=mesh.normals[:, 2].copy())
     elif fmt in _NORMAL_KEYS and mesh.normals is not None:
         point_data[_NORMAL_KEYS[fmt]] = mesh.normals
-    if fmt == "vtk":  # scalars and 3-vectors as they are, other widths split into columns
-        point_data.update(_split_columns({k: v for k, v in mesh.point_data.items() if v.ndim > 1 and v.shape[1] != 3}))
-        point_data.update(_split_columns({k: v for k, v in mesh.point_data.items() if v.ndim == 1}))
-        point_data.update({k: v for k, v in mesh.point_data.items() if v.ndim == 2 and v.shape[1] == 3})
+    if fmt in ("ply", "vtk"):
+        point_data.update(_file_point_data(mesh, fmt))
     faces = mesh.faces.astype(np.int32) if fmt == "ply" else mesh.faces
     out = meshio.Mesh(mesh.vertices, [("triangle", faces)], point_data=point_data)
     kwargs: dict[str, Any] = {"binary": True} if fmt in ("stl", "ply", "vtk") else {}
@@ -141,52 +353,67 @@ def save_mesh(mesh: Mesh, path: str | os.PathLike) -> None:
 def load_mesh(path: str | os.PathLike) -> Mesh:
     """Read a triangle mesh; the format follows the extension (.stl .obj .ply .off .vtk).
 
-    Quads and polygons are split into triangles (fans).  Normals are taken from the file
-    where it has them (VTK ``Normals``, PLY ``nx ny nz``, OBJ ``vn``); other point data is
-    kept in ``point_data``.  STL repeats vertices per triangle: they are merged.
+    Quads and polygons are split into triangles (fans), in OFF, OBJ, PLY and VTK alike.
+    Normals are taken from the file where it has them (VTK ``Normals``, PLY ``nx ny nz``,
+    OBJ ``vn``); other point data is kept in ``point_data``.  STL repeats vertices per
+    triangle: they are merged.  OBJ relative indices (``-1``: the last vertex so far) and
+    legacy VTK ``POLYDATA`` (read by VTK itself) are read too.
+
+    The header is checked first, then the file is read in a worker process that is stopped
+    after a time proportional to the file's size (see the module's docstring): a reader
+    that would loop forever gives a ValueError instead.
 
     Raises
     ------
     ValueError naming the path and the problem for an unknown extension, an empty,
     malformed or truncated file, or one without triangles; FileNotFoundError when it is
     missing.
-    """
-    import meshio
 
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> path = os.path.join(tempfile.mkdtemp(), "square.off")
+    >>> with open(path, "w") as f:
+    ...     _ = f.write("OFF\\n4 1 0\\n0 0 0\\n1 0 0\\n1 1 0\\n0 1 0\\n4 0 1 2 3\\n")
+    >>> load_mesh(path).faces
+    array([[0, 1, 2],
+           [0, 2, 3]])
+    >>> with open(path, "w") as f:
+    ...     _ = f.write("OFF\\n")
+    >>> load_mesh(path)  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ValueError: load_mesh: cannot read '...square.off' as OFF: no count line (vertices faces edges) after `OFF`...
+    """
     path, fmt = _format(path, MESH_FORMATS, "mesh")
-    _check_read(path)
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            # the format's own reader: meshio.read() exits the interpreter on some errors
-            raw = getattr(meshio, fmt).read(str(path))
-    except Exception as err:  # meshio raises many kinds (ReadError, struct.error, IndexError ...)
-        raise ValueError(f"cannot read {str(path)!r} as {fmt.upper()}: {type(err).__name__}: {err}") from None
+    size = _check_read(path, fmt, "load_mesh")
+    raw = _parse(fmt, path, size, "load_mesh")
     try:
         return _to_mesh(raw, fmt)
-    except ValueError as err:
-        raise ValueError(f"{str(path)!r} is not a valid triangle mesh: {err}") from None
+    except (ValueError, TypeError, IndexError) as err:
+        raise ValueError(f"load_mesh: {str(path)!r} is not a valid triangle mesh: {err}") from None
 
 
-def _to_mesh(raw: Any, fmt: str) -> Mesh:
+def _to_mesh(raw: dict[str, Any], fmt: str) -> Mesh:
     blocks = []
-    for block in raw.cells:
-        data = np.asarray(block.data)
-        if block.type == "triangle":
+    for kind, data in raw["cells"]:
+        data = np.asarray(data)
+        if data.ndim != 2 or data.dtype.kind not in "iu":
+            raise ValueError(f"{kind} cells must be a table of integer indices, got {data.dtype} {data.shape}")
+        if kind == "triangle":
             blocks.append(data)
-        elif block.type in ("quad", "polygon") or block.type.startswith("polygon"):
+        elif kind in ("quad", "polygon") or kind.startswith("polygon"):
             k = data.shape[1]  # fan: (0, i, i + 1)
             blocks.extend(data[:, [0, i, i + 1]] for i in range(1, k - 1))
     if not blocks:
-        kinds = ", ".join(sorted({b.type for b in raw.cells})) or "none"
+        kinds = ", ".join(sorted({kind for kind, _ in raw["cells"]})) or "none"
         raise ValueError(f"no triangles in the file (cells: {kinds})")
     faces = np.concatenate(blocks).astype(np.int64)
-    points = np.asarray(raw.points, dtype=np.float64)
+    points = np.asarray(raw["points"], dtype=np.float64)
     if points.ndim != 2 or points.shape[1] not in (2, 3):
         raise ValueError(f"points must have 3 coordinates, got shape {points.shape}")
     if points.shape[1] == 2:
         points = np.column_stack([points, np.zeros(len(points))])
-    data = {k: _native(v) for k, v in raw.point_data.items()}
+    data = {k: _native(v) for k, v in raw["point_data"].items()}
     normals = None
     if all(k in data for k in ("nx", "ny", "nz")):
         normals = np.column_stack([data.pop("nx"), data.pop("ny"), data.pop("nz")]).astype(np.float64)
@@ -205,36 +432,57 @@ def _native(values: Any) -> np.ndarray:
     return arr.astype(arr.dtype.newbyteorder("="), copy=False)
 
 
-def _points_array(values: Any, name: str, n: int | None = None) -> np.ndarray:
+def _points_array(values: Any, name: str, fn: str, n: int | None = None) -> np.ndarray:
+    """(N >= 1, 3) finite float64 ``values`` (numpy or torch), or an error naming ``fn`` and ``name``."""
     try:
         arr = np.asarray(values.detach().cpu() if hasattr(values, "detach") else values, dtype=np.float64)
     except (TypeError, ValueError) as err:
-        raise TypeError(f"{name} must be a numeric array: {err}") from None
+        raise TypeError(f"{fn}: {name} must be a numeric array: {err}") from None
     if arr.ndim != 2 or arr.shape[1] != 3 or (n is not None and len(arr) != n):
         want = "(N, 3)" if n is None else f"({n}, 3)"
-        raise ValueError(f"{name} must have shape {want}, got {arr.shape}")
+        raise ValueError(f"{fn}: {name} must have shape {want}, got {arr.shape}")
+    if len(arr) == 0:
+        raise ValueError(f"{fn}: {name} is empty (shape {arr.shape}); give at least one point")
     if not np.isfinite(arr).all():
-        raise ValueError(f"{name} contain NaN or inf (row {int(np.flatnonzero(~np.isfinite(arr).all(1))[0])})")
+        raise ValueError(f"{fn}: {name} contain NaN or inf (row {int(np.flatnonzero(~np.isfinite(arr).all(1))[0])})")
     return arr
 
 
-def save_points(path: str | os.PathLike, points: Any, normals: Any = None) -> None:
+def save_points(points: Any, path: str | os.PathLike, normals: Any = None) -> None:
     """Write a point cloud (N, 3), with optional normals (N, 3), as XYZ text or binary PLY.
 
+    The data first, then the file, as in :func:`save_mesh` (``save_mesh(mesh, path)``).
     XYZ: one point per line, ``x y z`` or ``x y z nx ny nz``, every digit of float64.
+
+    Parameters
+    ----------
+    points : (N, 3) array (numpy or torch), finite
+    path : file name ending in .xyz or .ply.  The old order ``save_points(path, points)``
+        still works (a path where the points belong cannot be points) with a DeprecationWarning.
+    normals : (N, 3) array or None
 
     Examples
     --------
     >>> import os, tempfile
     >>> import numpy as np
     >>> path = os.path.join(tempfile.mkdtemp(), "cloud.xyz")
-    >>> save_points(path, np.array([[0.0, 0.5, 1.0]]), np.array([[0.0, 0.0, 1.0]]))
+    >>> save_points(np.array([[0.0, 0.5, 1.0]]), path, np.array([[0.0, 0.0, 1.0]]))
     >>> load_points(path).normals
     array([[0., 0., 1.]])
     """
+    if isinstance(points, str | os.PathLike) and not isinstance(path, str | os.PathLike):
+        warnings.warn(
+            "save_points(path, points) is deprecated: the points come first, as in save_mesh(mesh, path); "
+            "call save_points(points, path)",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        points, path = path, points
+    if not isinstance(path, str | os.PathLike):
+        raise TypeError(f"save_points: path must be a str or os.PathLike, got {type(path).__name__}")
     path, fmt = _format(path, POINT_FORMATS, "point cloud")
-    pts = _points_array(points, "points")
-    nrm = None if normals is None else _points_array(normals, "normals", len(pts))
+    pts = _points_array(points, "points", "save_points")
+    nrm = None if normals is None else _points_array(normals, "normals", "save_points", len(pts))
     if fmt == "xyz":
         table = pts if nrm is None else np.column_stack([pts, nrm])
         np.savetxt(path, table, fmt="%.17g")
@@ -258,38 +506,32 @@ def load_points(path: str | os.PathLike) -> PointCloud:
     file, a wrong number of columns, NaN); FileNotFoundError when it is missing.
     """
     path, fmt = _format(path, POINT_FORMATS, "point cloud")
-    _check_read(path)
-    if fmt == "xyz":
+    size = _check_read(path, fmt, "load_points")
+    if fmt == "xyz":  # numpy's C parser: it cannot loop, so it runs here
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")  # loadtxt warns on an input without data
                 table = np.loadtxt(path, dtype=np.float64, ndmin=2, comments="#")
         except (ValueError, UnicodeDecodeError) as err:
-            raise ValueError(f"cannot read {str(path)!r} as XYZ: {err}") from None
+            raise ValueError(f"load_points: cannot read {str(path)!r} as XYZ: {err}") from None
         if table.size == 0:
-            raise ValueError(f"{str(path)!r} holds no points")
+            raise ValueError(f"load_points: {str(path)!r} holds no points")
         if table.shape[1] not in (3, 6):
             raise ValueError(
-                f"{str(path)!r}: XYZ rows need 3 (x y z) or 6 (x y z nx ny nz) numbers, got {table.shape[1]}"
+                f"load_points: {str(path)!r}: XYZ rows need 3 (x y z) or 6 (x y z nx ny nz) numbers, "
+                f"got {table.shape[1]}"
             )
         points, normals = table[:, :3], (table[:, 3:] if table.shape[1] == 6 else None)
     else:
-        import meshio
-
-        try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                raw = meshio.ply.read(str(path))
-        except Exception as err:
-            raise ValueError(f"cannot read {str(path)!r} as PLY: {type(err).__name__}: {err}") from None
-        points = np.asarray(raw.points, dtype=np.float64)
-        data = raw.point_data
+        raw = _parse(fmt, path, size, "load_points")
+        points = raw["points"]
+        data = raw["point_data"]
         normals = None
         if all(k in data for k in ("nx", "ny", "nz")):
-            normals = np.column_stack([data["nx"], data["ny"], data["nz"]]).astype(np.float64)
+            normals = np.column_stack([np.ravel(data["nx"]), np.ravel(data["ny"]), np.ravel(data["nz"])])
     try:
-        pts = _points_array(points, "points")
-        nrm = None if normals is None else _points_array(normals, "normals", len(pts))
-    except ValueError as err:
-        raise ValueError(f"{str(path)!r}: {err}") from None
+        pts = _points_array(points, "points", "load_points")
+        nrm = None if normals is None else _points_array(normals, "normals", "load_points", len(pts))
+    except (ValueError, TypeError) as err:
+        raise ValueError(f"load_points: {str(path)!r}: {str(err).removeprefix('load_points: ')}") from None
     return PointCloud(pts, nrm)

@@ -165,11 +165,15 @@ class Mesh:
             poly.point_data[name] = values
         return poly
 
-    def save(self, path: str | os.PathLike, **kwargs: Any) -> None:
-        """Write the mesh; the format follows the extension (see :func:`pyfrep_core.io.save_mesh`)."""
+    def save(self, path: str | os.PathLike) -> None:
+        """Write the mesh to ``path``; the format follows the extension: ``save_mesh(self, path)``.
+
+        See :func:`pyfrep_core.io.save_mesh` for the formats and what each keeps.  It takes no
+        other arguments (an unknown keyword is a TypeError).
+        """
         from .io import save_mesh
 
-        save_mesh(self, path, **kwargs)
+        save_mesh(self, path)
 
 
 def _as_array(values: Any, dtype: type, name: str) -> np.ndarray:

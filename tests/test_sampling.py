@@ -135,7 +135,7 @@ def test_cloud_saved_and_loaded_exactly(tmp_path, suffix):
 
     p = dict(scale1=7.0, scale2=4.0, freq1=0.8, freq2=0.6)
     pts = sample_surface(microstructure, 500, params=p, noise=0.0, seed=4, resolution=64)
-    save_points(tmp_path / f"cloud{suffix}", pts)
+    save_points(pts, tmp_path / f"cloud{suffix}")
     cloud = load_points(tmp_path / f"cloud{suffix}")
     np.testing.assert_array_equal(cloud.points, pts)  # XYZ keeps every digit, PLY stores float64
     assert np.abs(microstructure(cloud.points, **p)).max() < 1e-9

@@ -442,7 +442,7 @@ def test_fitting_panel_loads_a_cloud_from_xyz(tmp_path):
     p = fitting_panel(backend="image", n_points=200, seed=5)
     try:
         pts = p.points[:150]
-        save_points(tmp_path / "cloud.xyz", pts)
+        save_points(pts, tmp_path / "cloud.xyz")
         p.load_cloud(str(tmp_path / "cloud.xyz"))
         np.testing.assert_allclose(p.points, pts)
         assert p.truth is None and p.source.value == "file" and "150 points loaded" in p.status.value

@@ -24,9 +24,24 @@ quantities from ONE evaluation of f (:func:`pyfrep_core.diff.tangent_hessian`).
 :func:`curvatures_from_hessian` applies the paper's formulas to a full Hessian; the tests
 check that both agree.
 
-Where grad f = 0 (or is not finite) the curvatures are undefined: NaN there and only there.
-At a crease of an R-function (f1 = f2 = 0 exactly) the curvature is infinite in theory;
-the values are then huge (up to ~1e150 in float64) but not NaN.
+Undefined curvature.  The curvatures of the level set through x exist only where f is twice
+differentiable with grad f != 0.  They do not at a critical point (grad f = 0: a sphere's or a
+box's centre, a cylinder's axis), nor on a crease or a cone tip of the level set (f1 = f2 = 0 in
+an R-function, the axis of a torus, a cone's apex), where the Hessian is unbounded: there
+:func:`~pyfrep_core._array.safe_sqrt` makes it finite but of order 1/rho0 (rho0 = tiny^(1/4):
+8e76 in float64, 3e9 in float32).  A point is reported *undefined* when
+
+- grad f is 0 or not finite, or the shape operator ``S = -T Hf T^T / |g|`` is not finite; or
+- the radius of curvature 1/max|S_ab| is below the resolution of the computation,
+  ``eps |x| + sqrt(rho0)`` (eps, tiny of the dtype): the first term is the rounding of the point
+  (a gradient that vanishes up to rounding gives a "curvature" of 1/(eps |x|)), the second the
+  geometric mean of the regularization's length rho0 and 1 (1e-38 in float64, 2e-5 in float32),
+  which keeps a margin of 1/sqrt(rho0) between real radii and those of creases.
+
+At such points EVERY curvature field is NaN (never inf or a huge number) and
+``Curvatures.defined`` is False; ``defined`` is True exactly where all fields are finite, so
+``c.defined.sum()`` counts the points with a curvature and ``c.H[c.defined]`` leaves the others
+out of a colour range.
 """
 
 from __future__ import annotations
@@ -52,7 +67,11 @@ __all__ = [
 
 
 class Curvatures(NamedTuple):
-    """Curvatures at N points (numpy or torch, following the input)."""
+    """Curvatures at N points (numpy or torch, following the input).
+
+    Every field is NaN where the curvature is undefined (see the module notes), and only there;
+    ``defined`` marks the other points.
+    """
 
     H: Any  # (N,) mean curvature (kmin + kmax) / 2
     K: Any  # (N,) Gaussian curvature kmin * kmax
@@ -60,13 +79,34 @@ class Curvatures(NamedTuple):
     kmax: Any  # (N,) larger principal curvature
     dmin: Any  # (N, 3) unit principal direction of kmin (tangent to the surface)
     dmax: Any  # (N, 3) unit principal direction of kmax
+    defined: Any  # (N,) bool: False where the curvature is undefined (all other fields NaN there)
 
 
-def _from_shape_operator(g: torch.Tensor, frame: torch.Tensor, th: torch.Tensor) -> Curvatures:
-    """Curvatures from the tangent Hessian ``th = T Hf T^T`` (N, 2, 2) and the gradient (N, 3)."""
+def _shape_operator(g: torch.Tensor, th: torch.Tensor, x: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor]:
+    """The shape operator ``S = -th / |g|`` (N, d-1, d-1) and the mask (N,) of points where it is defined.
+
+    Undefined: grad f zero or not finite, S not finite, or a radius of curvature 1/max|S_ab| below
+    ``eps |x| + tiny^(1/8)`` (module notes); ``x`` None (no points known) drops the first term.
+    """
     norm = torch.linalg.vector_norm(g, dim=-1)
-    undefined = ~(torch.isfinite(norm) & (norm > 0))
-    s = -th / torch.where(undefined, torch.ones_like(norm), norm)[:, None, None]
+    ok = torch.isfinite(norm) & (norm > 0)
+    s = -th / torch.where(ok, norm, torch.ones_like(norm))[:, None, None]
+    finfo = torch.finfo(s.dtype)
+    resolution = finfo.tiny**0.125
+    if x is not None:
+        resolution = resolution + finfo.eps * torch.linalg.vector_norm(x.detach(), dim=-1)
+    size = s.detach().abs().amax(dim=(-2, -1))
+    defined = ok & torch.isfinite(size) & (size * resolution < 1.0)
+    return s, defined
+
+
+def _from_shape_operator(
+    g: torch.Tensor, frame: torch.Tensor, th: torch.Tensor, x: torch.Tensor | None = None
+) -> Curvatures:
+    """Curvatures from the tangent Hessian ``th = T Hf T^T`` (N, 2, 2), the gradient (N, 3) and the points."""
+    s, defined = _shape_operator(g, th, x)
+    undefined = ~defined
+    s = torch.where(undefined[:, None, None], torch.zeros_like(s), s)  # no inf/NaN in the arithmetic below
     a, b, c = s[:, 0, 0], s[:, 0, 1], s[:, 1, 1]
     mean = 0.5 * (a + c)
     radius = torch.hypot(0.5 * (a - c), b)  # sqrt(H^2 - K) without cancellation, >= 0
@@ -80,7 +120,7 @@ def _from_shape_operator(g: torch.Tensor, frame: torch.Tensor, th: torch.Tensor)
     nan = torch.full_like(mean, float("nan"))
     values = [torch.where(undefined, nan, v) for v in (mean, gauss, kmin, kmax)]
     dirs = [torch.where(undefined[:, None], nan[:, None], d) for d in (dmin, dmax)]
-    return Curvatures(*values, *dirs)
+    return Curvatures(*values, *dirs, defined)
 
 
 def _curvatures(f: Callable, x: Any, create_graph: bool, chunk: int | None) -> tuple[Curvatures, bool, tuple]:
@@ -88,7 +128,7 @@ def _curvatures(f: Callable, x: Any, create_graph: bool, chunk: int | None) -> t
 
     def one(c: torch.Tensor) -> Curvatures:
         _, g, frame, th = _tangent_hessian(f, c, create_graph)
-        return _from_shape_operator(g, frame, th)
+        return _from_shape_operator(g, frame, th, c)
 
     out = one(t) if create_graph else Curvatures(*_map_chunks(one, t, chunk))
     return out, was_numpy, batch
@@ -111,7 +151,8 @@ def curvatures(f: Callable, x: Any, create_graph: bool = False, chunk: int | Non
 
     Returns
     -------
-    Curvatures(H, K, kmin, kmax, dmin, dmax); NaN where grad f = 0.
+    Curvatures(H, K, kmin, kmax, dmin, dmax, defined): every field NaN where the curvature is
+    undefined (grad f = 0, a crease or a cone tip: module notes) and ``defined`` False there.
 
     Examples
     --------
@@ -120,6 +161,9 @@ def curvatures(f: Callable, x: Any, create_graph: bool = False, chunk: int | Non
     >>> c = curvatures(lambda p: sphere(p, r=2.0), np.array([[0.0, 0.0, 2.0], [1.2, 0.0, 1.6]]))
     >>> c.H, c.K, c.kmin, c.kmax
     (array([0.5, 0.5]), array([0.25, 0.25]), array([0.5, 0.5]), array([0.5, 0.5]))
+    >>> c = curvatures(lambda p: sphere(p, r=2.0), np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 2.0]]))
+    >>> c.defined, c.H                      # the centre: grad f = 0, no curvature
+    (array([False,  True]), array([nan, 0.5]))
     """
     out, was_numpy, batch = _curvatures(f, x, create_graph, chunk)
     return _out(out, was_numpy, batch)
@@ -129,7 +173,8 @@ def mean_curvature(f: Callable, x: Any, create_graph: bool = False, chunk: int |
     """Mean curvature H = -1/2 div(grad f / |grad f|) (paper eq. for H), shape (N,).
 
     For points in the plane (N, 2) this is the curvature of the curve f = c,
-    ``-div(grad f / |grad f|)`` (a circle of radius r: 1/r).  NaN where grad f = 0.
+    ``-div(grad f / |grad f|)`` (a circle of radius r: 1/r).  NaN where the curvature is
+    undefined (grad f = 0, a crease or a cone tip: the rule of :func:`curvatures`).
 
     Examples
     --------
@@ -142,11 +187,10 @@ def mean_curvature(f: Callable, x: Any, create_graph: bool = False, chunk: int |
 
     def one(c: torch.Tensor) -> tuple[torch.Tensor]:
         _, g, _, th = _tangent_hessian(f, c, create_graph)
-        norm = torch.linalg.vector_norm(g, dim=-1)
-        undefined = ~(torch.isfinite(norm) & (norm > 0))
+        s, defined = _shape_operator(g, th, c)
         # H = tr(S) / (d - 1) with the shape operator S = -T Hf T^T / |g|
-        h = -th.diagonal(dim1=-2, dim2=-1).sum(-1) / ((c.shape[-1] - 1) * torch.where(undefined, 1.0, norm))
-        return (torch.where(undefined, torch.full_like(h, float("nan")), h),)
+        h = s.diagonal(dim1=-2, dim2=-1).sum(-1) / (c.shape[-1] - 1)
+        return (torch.where(defined, h, torch.full_like(h, float("nan"))),)
 
     (h,) = one(t) if create_graph else _map_chunks(one, t, chunk)
     return _out(h, was_numpy, batch)
@@ -154,6 +198,8 @@ def mean_curvature(f: Callable, x: Any, create_graph: bool = False, chunk: int |
 
 def gaussian_curvature(f: Callable, x: Any, create_graph: bool = False, chunk: int | None = None) -> Any:
     """Gaussian curvature K = grad f adj(Hf) grad f^T / |grad f|^4 (paper eq. for K), shape (N,).
+
+    NaN where the curvature is undefined (the rule of :func:`curvatures`).
 
     Examples
     --------
@@ -168,6 +214,8 @@ def gaussian_curvature(f: Callable, x: Any, create_graph: bool = False, chunk: i
 
 def principal_curvatures(f: Callable, x: Any, create_graph: bool = False, chunk: int | None = None) -> tuple:
     """Principal curvatures (kmin, kmax), each (N,): ``H -+ sqrt(max(H^2 - K, 0))``.
+
+    NaN where the curvature is undefined (the rule of :func:`curvatures`).
 
     Examples
     --------
@@ -185,7 +233,8 @@ def principal_directions(f: Callable, x: Any, create_graph: bool = False, chunk:
 
     They are the eigenvectors of the shape operator restricted to the tangent plane, for
     kmin and kmax.  At umbilic points (kmin = kmax) every tangent direction is principal and
-    an arbitrary orthonormal pair is returned.  NaN where grad f = 0.
+    an arbitrary orthonormal pair is returned.  NaN where the curvature is undefined (the rule
+    of :func:`curvatures`).
 
     Examples
     --------
@@ -199,13 +248,15 @@ def principal_directions(f: Callable, x: Any, create_graph: bool = False, chunk:
     return _out((out.dmin, out.dmax), was_numpy, batch)
 
 
-def curvatures_from_hessian(g: Any, hess: Any) -> Curvatures:
+def curvatures_from_hessian(g: Any, hess: Any, x: Any = None) -> Curvatures:
     """The paper's formulas applied to a gradient (N, 3) and a full Hessian (N, 3, 3).
 
     ``H = (g^T Hf g - |g|^2 tr Hf) / (2 |g|^3)``, ``K = g adj(Hf) g^T / |g|^4``,
     ``kmin, kmax = H -+ sqrt(max(H^2 - K, 0))``; directions from Hf projected on a tangent
     frame.  Use it with a Hessian from :func:`pyfrep_core.diff.hessian` (or any other
     source); :func:`curvatures` gets the same values with one backward pass less.
+    Undefined points (NaN in every field, ``defined`` False) follow the rule of
+    :func:`curvatures`; pass the points ``x`` (N, 3) for its rounding term ``eps |x|``.
 
     Examples
     --------
@@ -219,10 +270,12 @@ def curvatures_from_hessian(g: Any, hess: Any) -> Curvatures:
     ht = torch.from_numpy(np.asarray(hess)) if not isinstance(hess, torch.Tensor) else hess
     if gt.ndim != 2 or gt.shape[-1] != 3 or ht.shape != (gt.shape[0], 3, 3):
         raise ValueError(f"g must be (N, 3) and hess (N, 3, 3), got {tuple(gt.shape)} and {tuple(ht.shape)}")
+    xt = None if x is None else torch.as_tensor(np.asarray(x) if not isinstance(x, torch.Tensor) else x)
+    if xt is not None and xt.shape != gt.shape:
+        raise ValueError(f"x must be (N, 3) like g, got {tuple(xt.shape)} for g {tuple(gt.shape)}")
     ht = 0.5 * (ht + ht.transpose(1, 2))
     norm = torch.linalg.vector_norm(gt, dim=-1)
-    undefined = ~(torch.isfinite(norm) & (norm > 0))
-    safe = torch.where(undefined, torch.ones_like(norm), norm)
+    safe = torch.where(torch.isfinite(norm) & (norm > 0), norm, torch.ones_like(norm))
     ghg = torch.einsum("ni,nij,nj->n", gt, ht, gt)
     trace = ht.diagonal(dim1=-2, dim2=-1).sum(-1)
     mean = (ghg - norm**2 * trace) / (2.0 * safe**3)
@@ -230,10 +283,10 @@ def curvatures_from_hessian(g: Any, hess: Any) -> Curvatures:
     root = torch.sqrt(torch.clamp(mean * mean - gauss, min=0.0))
     frame = tangent_frame(gt / safe[:, None])
     th = torch.einsum("nai,nij,nbj->nab", frame, ht, frame)
-    dirs = _from_shape_operator(gt, frame, th)
+    dirs = _from_shape_operator(gt, frame, th, xt)
     nan = torch.full_like(mean, float("nan"))
-    values = [torch.where(undefined, nan, v) for v in (mean, gauss, mean - root, mean + root)]
-    out = Curvatures(*values, dirs.dmin, dirs.dmax)
+    values = [torch.where(dirs.defined, v, nan) for v in (mean, gauss, mean - root, mean + root)]
+    out = Curvatures(*values, dirs.dmin, dirs.dmax, dirs.defined)
     return _out(out, was_numpy)
 
 

@@ -17,6 +17,16 @@ quickly with k (k = 2, 3 are the useful ones).
 
 Undefined points: where grad f = 0, ``delta_1`` and ``omega_k`` (k >= 2) are NaN (the normal is
 undefined); ``omega_1`` is then ``sign(f)``, and NaN only where f = 0 and grad f = 0 together.
+
+Creases (f1 = f2 = 0 in an R-function, where f is not differentiable): the R-functions take the
+square root through :func:`~pyfrep_core._array.safe_sqrt`, whose derivatives up to the third
+order are finite there, so grad f is the sub-gradient and ``omega_2`` (third derivatives of f) is
+finite.  On a crease that lies on the surface f = 0 (an edge of the solid) every normalization is
+0 there, as it should be.  On a crease off the surface (a blend's edge, f = a0; an inner edge of a
+nested operation) the second normal derivative of omega_1 is unbounded in theory (~1/rho0 with
+rho0 = safe_sqrt(0)), so ``omega_k`` (k >= 2) is huge there, of either sign: the recursion itself
+is singular along such a crease (its limit is infinite), while ``omega_1`` and ``delta_1`` stay
+O(1).  ``omega_3`` needs sixth derivatives and is NaN exactly on a crease.
 """
 
 from __future__ import annotations

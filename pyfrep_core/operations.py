@@ -83,9 +83,32 @@ def difference(f1: torch.Tensor, f2: torch.Tensor) -> torch.Tensor:
     return intersection(f1, -f2)
 
 
+def _r_m(f1: torch.Tensor, f2: torch.Tensor, m: Scalar, sign: float, fn: str) -> torch.Tensor:
+    # (f1 + f2 +- rho) rho^m with rho = safe_sqrt(f1^2 + f2^2): written with s^(m/2) instead,
+    # d s^(m/2)/ds = inf at s = 0 meets ds/df = 0 and the gradient is NaN at f1 = f2 = 0
+    check_param(m, "m", fn, nonnegative=True)
+    rho = safe_sqrt(f1 * f1 + f2 * f2)
+    return (f1 + f2 + sign * rho) * rho**m
+
+
 @frep
 def union_m(f1: torch.Tensor, f2: torch.Tensor, m: float = 1.0) -> torch.Tensor:
     """R_m union: ``(f1 + f2 + sqrt(f1^2 + f2^2)) * (f1^2 + f2^2)^(m/2)`` (C^m on the plane).
+
+    ``rho = sqrt(f1^2 + f2^2)`` is :func:`~pyfrep_core._array.safe_sqrt` and the factor is
+    ``rho^m``, so value, gradient and Hessian are finite everywhere, also at f1 = f2 = 0:
+    there the gradient is ``(grad f1 + grad f2) rho0^m`` with ``rho0 = safe_sqrt(0)`` (about
+    1e-77 in float64), i.e. 0 to rounding, the exact derivative for m > 0 (the function is
+    homogeneous of degree m + 1 in (f1, f2)); m = 0 is :func:`union` and its sub-gradient.
+
+    Parameters
+    ----------
+    f1, f2 : field values (broadcastable shapes).
+    m : smoothness order, finite and >= 0.
+
+    Returns
+    -------
+    field values of the broadcast shape.
 
     Examples
     --------
@@ -93,13 +116,23 @@ def union_m(f1: torch.Tensor, f2: torch.Tensor, m: float = 1.0) -> torch.Tensor:
     >>> union_m(torch.tensor([3.0]), torch.tensor([4.0]), m=2)
     tensor([300.])
     """
-    s = f1 * f1 + f2 * f2
-    return (f1 + f2 + safe_sqrt(s)) * s ** (0.5 * m)
+    return _r_m(f1, f2, m, 1.0, "union_m")
 
 
 @frep
 def intersection_m(f1: torch.Tensor, f2: torch.Tensor, m: float = 1.0) -> torch.Tensor:
     """R_m intersection: ``(f1 + f2 - sqrt(f1^2 + f2^2)) * (f1^2 + f2^2)^(m/2)``.
+
+    Finite value, gradient and Hessian everywhere, as for :func:`union_m`.
+
+    Parameters
+    ----------
+    f1, f2 : field values (broadcastable shapes).
+    m : smoothness order, finite and >= 0.
+
+    Returns
+    -------
+    field values of the broadcast shape.
 
     Examples
     --------
@@ -107,13 +140,21 @@ def intersection_m(f1: torch.Tensor, f2: torch.Tensor, m: float = 1.0) -> torch.
     >>> intersection_m(torch.tensor([3.0]), torch.tensor([4.0]), m=2)
     tensor([50.])
     """
-    s = f1 * f1 + f2 * f2
-    return (f1 + f2 - safe_sqrt(s)) * s ** (0.5 * m)
+    return _r_m(f1, f2, m, -1.0, "intersection_m")
 
 
 @frep
 def difference_m(f1: torch.Tensor, f2: torch.Tensor, m: float = 1.0) -> torch.Tensor:
     """R_m difference: ``intersection_m(f1, -f2, m)``.
+
+    Parameters
+    ----------
+    f1, f2 : field values (broadcastable shapes); the solid of f2 is removed from f1's.
+    m : smoothness order, finite and >= 0.
+
+    Returns
+    -------
+    field values of the broadcast shape.
 
     Examples
     --------
@@ -121,7 +162,7 @@ def difference_m(f1: torch.Tensor, f2: torch.Tensor, m: float = 1.0) -> torch.Te
     >>> difference_m(torch.tensor([3.0]), torch.tensor([-4.0]), m=2)
     tensor([50.])
     """
-    return intersection_m(f1, -f2, m)
+    return _r_m(f1, -f2, m, -1.0, "difference_m")
 
 
 @frep

@@ -399,10 +399,13 @@ def capsule(
 ) -> torch.Tensor:
     """Capsule: points within ``radius`` of the segment a-b, ``d = radius - |x - closest(a, b)|``.
 
+    With a == b the segment is a point and the capsule the sphere of that radius around it
+    (exact distance ``radius - |x - a|``, finite gradients).
+
     Parameters
     ----------
     x : (..., 3) points.
-    a, b : (3,) or (B, 3) end points of the segment (a != b).
+    a, b : (3,) or (B, 3) end points of the segment (a == b allowed: a sphere).
     radius : radius.
 
     Returns
@@ -414,11 +417,16 @@ def capsule(
     >>> import torch
     >>> capsule(torch.tensor([[0.0, 0.0, 2.0], [1.0, 0.0, 0.0]]), a=(0, 0, -1), b=(0, 0, 1), radius=0.5)
     tensor([-0.5000, -0.5000])
+    >>> capsule(torch.tensor([[0.0, 0.0, 2.0]]), a=(0, 0, 1), b=(0, 0, 1), radius=0.5)  # a sphere
+    tensor([-0.5000])
     """
     x = _points(x)
     va, vb = vec(a, x, name="a"), vec(b, x, name="b")
     pa, ba = x - va, vb - va
-    t = (_dot(pa, ba) / _dot(ba, ba)).clamp(0.0, 1.0)
+    # the closest point's parameter on the segment; a == b (a point, 0/0): t = 0, the closest point is a
+    length2 = _dot(ba, ba)
+    point = length2 == 0
+    t = torch.where(point, 0.0, _dot(pa, ba) / torch.where(point, 1.0, length2)).clamp(0.0, 1.0)
     return radius - _length(pa - ba * t.unsqueeze(-1))
 
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from pyfrep_core import block, cylZ, ellipsoid, intersection, polygonize, sphere, torusZ
+from pyfrep_core import block, coneZ, cylZ, ellipsoid, intersection, polygonize, sdf, sphere, torusZ
 from pyfrep_core.curvature import (
     attach_curvatures,
     curvatures,
@@ -162,15 +162,77 @@ def test_zero_gradient_gives_nan_there_only():
     np.testing.assert_allclose(c.H[2], 1 / 0.6, rtol=1e-12)
 
 
-def test_creases_give_huge_but_not_nan_curvatures():
-    cube = lambda p: intersection(sphere(p, r=1.0), block(p, vertex=(-0.75,) * 3, dx=1.5, dy=1.5, dz=1.5))  # noqa: E731
-    x = torch.tensor([[0.75, 0.75, 0.2], [0.75, 0.3, 0.2]], dtype=torch.float64)
-    for dtype in (torch.float64, torch.float32):
-        c = curvatures(cube, x.to(dtype))
-        for v in c:
-            assert not torch.isnan(v).any()
-        assert c.kmax[0] > 1e10  # the edge of the cube: a crease
-        assert abs(float(c.H[1])) < 1e-5  # the middle of a flat face
+CUBE = lambda p: intersection(sphere(p, r=1.0), block(p, vertex=(-0.75,) * 3, dx=1.5, dy=1.5, dz=1.5))  # noqa: E731
+
+# where the curvature of the level set does not exist: grad f = 0 (centres, axes, apexes), or f is not
+# twice differentiable (the torus axis and the sdf axes: cone tips of the level sets; a crease)
+UNDEFINED = {
+    "sphere centre": (lambda p: sphere(p, r=1.0), (0.0, 0.0, 0.0)),
+    "sdf.sphere centre": (lambda p: sdf.sphere(p, r=1.0), (0.0, 0.0, 0.0)),
+    "block centre": (lambda p: block(p, vertex=(-0.75,) * 3, dx=1.5, dy=1.5, dz=1.5), (0.0, 0.0, 0.0)),
+    "sdf.box centre": (lambda p: sdf.box(p, b=(0.5, 0.6, 0.7)), (0.0, 0.0, 0.0)),
+    "cylZ axis": (lambda p: cylZ(p, r=0.5), (0.0, 0.0, 0.3)),
+    "sdf.cylinderZ axis": (lambda p: sdf.cylinderZ(p, r=0.5), (0.0, 0.0, 0.3)),
+    "torusZ axis": (lambda p: torusZ(p, R=1.0, r=0.25), (0.0, 0.0, 0.3)),
+    "sdf.torusZ axis": (lambda p: sdf.torusZ(p, R=1.0, r=0.25), (0.0, 0.0, 0.3)),
+    "coneZ apex": (lambda p: coneZ(p, R=1.0), (0.0, 0.0, 0.0)),
+    "sdf.coneZ apex": (lambda p: sdf.coneZ(p, r=1.0), (0.0, 0.0, 0.0)),
+    "sdf.coneZ axis": (lambda p: sdf.coneZ(p, r=1.0), (0.0, 0.0, 0.3)),
+    "cube edge (crease)": (CUBE, (0.75, 0.75, 0.2)),
+}
+
+
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
+@pytest.mark.parametrize("name", list(UNDEFINED))
+def test_undefined_curvature_is_nan_in_every_field_and_masked(name, dtype):
+    f, point = UNDEFINED[name]
+    # the undefined point beside one that has a curvature: x = (0.6, 0, 0), off every axis and crease
+    x = torch.tensor([point, (0.6, 0.0, 0.0)], dtype=dtype)
+    c = curvatures(f, x)
+    assert c.defined.tolist() == [False, True]
+    for field in ("H", "K", "kmin", "kmax", "dmin", "dmax"):
+        v = getattr(c, field)
+        assert v.dtype == dtype and torch.isnan(v[0]).all() and torch.isfinite(v[1]).all(), field
+    assert torch.isnan(mean_curvature(f, x)[0]) and torch.isnan(gaussian_curvature(f, x)[0])
+    assert all(torch.isnan(k[0]) for k in principal_curvatures(f, x))
+    # the paper's formulas on the full Hessian say the same
+    _, g, h = value_grad_hessian(f, x)
+    assert curvatures_from_hessian(g, h, x).defined.tolist() == [False, True]
+
+
+def test_defined_points_keep_their_closed_form_curvatures_float64():
+    # sphere: the level set through x is the sphere of radius |x| (H = 1/|x|, K = 1/|x|^2), centre undefined
+    x = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.6, 0.0, 0.0], [0.0, 1e-6, 0.0]])
+    c = curvatures(lambda p: sphere(p, r=1.0), x)
+    assert c.defined.tolist() == [False, True, True, True]
+    np.testing.assert_allclose(c.H[1:], [1.0, 1 / 0.6, 1e6], rtol=1e-12)
+    np.testing.assert_allclose(c.K[1:], [1.0, 1 / 0.36, 1e12], rtol=1e-12)
+    np.testing.assert_allclose(c.kmin[1:], c.kmax[1:], rtol=1e-12)
+    # torus: points on the surface (v = angle around the tube) and its axis, in one call
+    R, r = 1.0, 0.25
+    v = np.linspace(0.1, 2 * np.pi, 7, endpoint=False)
+    on = np.column_stack([R + r * np.cos(v), np.zeros_like(v), r * np.sin(v)])
+    for f in (lambda p: torusZ(p, R=R, r=r), lambda p: sdf.torusZ(p, R=R, r=r)):
+        c = curvatures(f, np.vstack([on, [[0.0, 0.0, 0.3]]]))
+        assert c.defined.tolist() == [True] * len(v) + [False]
+        np.testing.assert_allclose(c.K[:-1], np.cos(v) / (r * (R + r * np.cos(v))), rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(c.kmax[:-1], 1 / r, rtol=1e-12)
+        np.testing.assert_allclose(c.H[:-1], (R + 2 * r * np.cos(v)) / (2 * r * (R + r * np.cos(v))), rtol=1e-12)
+
+
+def test_the_mask_counts_the_undefined_points_of_a_grid():
+    # a 5^3 grid over the cube: its creases are the 12 edges of [-0.75, 0.75]^3 and its centre a
+    # critical point; grid points on an edge (two coordinates at +-0.75) and the centre have no curvature
+    t = np.linspace(-0.75, 0.75, 5)
+    x = np.stack(np.meshgrid(t, t, t, indexing="ij"), axis=-1).reshape(-1, 3)
+    cube = lambda p: block(p, vertex=(-0.75,) * 3, dx=1.5, dy=1.5, dz=1.5)  # noqa: E731
+    c = curvatures(cube, x)
+    on_edge = (np.abs(np.abs(x) - 0.75) < 1e-12).sum(axis=1) >= 2
+    centre = (x == 0).all(axis=1)
+    np.testing.assert_array_equal(~c.defined, on_edge | centre)
+    assert int((~c.defined).sum()) == 12 * 3 + 8 + 1  # 3 interior points per edge, 8 corners, the centre
+    for field in ("H", "K", "kmin", "kmax"):
+        np.testing.assert_array_equal(np.isfinite(getattr(c, field)), c.defined)
 
 
 def test_plane_curves_and_kinds():

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from pyfrep_core import polygonize, sphere, torusZ
+from pyfrep_core import operations, polygonize, sphere, torusZ
 from pyfrep_core.models import ellipse, ellipse_distance, fig1_part
 from pyfrep_core.normalization import delta_1, normal_derivative, normalized, omega_1, omega_k
 
@@ -134,3 +134,60 @@ def test_float32_and_torch_in_torch_out():
     for fn in (omega_1, delta_1, lambda f, q: omega_k(f, q, 2)):
         v = fn(ellipse, x)
         assert isinstance(v, torch.Tensor) and v.dtype == torch.float32 and v.abs().max() < 1e-5
+
+
+def test_omega_2_of_a_sphere_equals_its_closed_form():
+    # f = r^2 - |x|^2 is radial: omega_1(rho) = (r^2 - rho^2) / sqrt((r^2 - rho^2)^2 + 4 rho^2), the
+    # normal n = -x/rho is constant along a ray, so d^2/dn^2 = d^2/drho^2 and omega_2 = w1 - w1^2 w1'' / 2
+    sympy = pytest.importorskip("sympy")
+    r, rho_ = 0.8, sympy.Symbol("rho", positive=True)
+    w1 = (r**2 - rho_**2) / sympy.sqrt((r**2 - rho_**2) ** 2 + 4 * rho_**2)
+    w2 = sympy.lambdify(rho_, w1 - w1**2 * sympy.diff(w1, rho_, 2) / 2)
+    rng = np.random.default_rng(3)
+    directions = rng.normal(size=(200, 3))
+    rho = rng.uniform(0.1, 1.6, 200)
+    x = directions / np.linalg.norm(directions, axis=1, keepdims=True) * rho[:, None]
+    np.testing.assert_allclose(omega_k(lambda p: sphere(p, r=r), x, 2), w2(rho), rtol=1e-11, atol=1e-14)
+
+
+F1 = lambda p: p[..., 0] + 0.5 * p[..., 2] ** 2  # noqa: E731
+F2 = lambda p: p[..., 1] - 0.3 * p[..., 2]  # noqa: E731
+CREASE = (-0.125, 0.15, 0.5)  # F1 = F2 = 0 there; the gradients (1, 0, 0.5) and (0, 1, -0.3) differ
+ON_SURFACE = {  # the crease lies on f = 0
+    "union": lambda p: operations.union(F1(p), F2(p)),
+    "intersection": lambda p: operations.intersection(F1(p), F2(p)),
+    "difference": lambda p: operations.difference(F1(p), F2(p)),
+    "union_m": lambda p: operations.union_m(F1(p), F2(p)),
+    "intersection_m": lambda p: operations.intersection_m(F1(p), F2(p)),
+    "difference_m": lambda p: operations.difference_m(F1(p), F2(p)),
+}
+OFF_SURFACE = {  # the crease lies inside the solid (f = a0 there)
+    "blendUnion": lambda p: operations.blendUnion(F1(p), F2(p), 0.5, 1.0, 1.0),
+    "blendIntersection": lambda p: operations.blendIntersection(F1(p), F2(p), 0.5, 1.0, 1.0),
+    "blendDifference": lambda p: operations.blendDifference(F1(p), -F2(p), 0.5, 1.0, 1.0),
+    "boundBlendUnion": lambda p: operations.boundBlendUnion(F1(p), F2(p), p[..., 2] + 1.0, 0.5),
+    "boundBlendIntersection": lambda p: operations.boundBlendIntersection(F1(p), F2(p), p[..., 2] + 1.0, 0.5),
+}
+
+
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
+def test_omega_2_is_finite_on_the_creases_of_r_functions(dtype):
+    rho0 = torch.finfo(dtype).tiny ** 0.25  # safe_sqrt(0): the value of an R-function on its crease
+    # a crease on the surface: omega_2 = omega_1 = 0 up to rho0 (fig1_part: a block face meets a cylinder)
+    fig1_creases = torch.tensor([[0.75, 0.5, 0.0], [0.5, 0.75, 0.0]], dtype=dtype)
+    assert float(fig1_part(fig1_creases).abs().max()) <= rho0
+    for kind in ("omega2", "omega1", "delta1"):
+        assert float(normalized(fig1_part, kind)(fig1_creases).abs().max()) <= rho0, kind
+    x = torch.tensor([CREASE], dtype=dtype)
+    for name, f in ON_SURFACE.items():
+        assert float(f(x).abs()) <= rho0, name
+        for k in (1, 2):
+            assert float(omega_k(f, x, k).abs()) <= 2 * rho0, (name, k)
+    # a crease off the surface (a blend's edge, the Fig. 1 cube's edge outside the part): finite; there
+    # the second normal derivative of omega_1 is unbounded and omega_2 huge (module notes)
+    for name, f in OFF_SURFACE.items():
+        assert float(f(x)) == pytest.approx(0.5, abs=2 * rho0), name
+        assert torch.isfinite(omega_k(f, x, 2)).all(), name
+        # omega_1 = f / sqrt(f^2 + |g|^2) with the sub-gradient g = (1, 0, 0.5) + (0, 1, -0.3)
+        assert float(omega_1(f, x)) == pytest.approx(0.5 / math.sqrt(0.25 + 2.04), rel=1e-6), name
+    assert torch.isfinite(omega_k(fig1_part, torch.tensor([[0.75, 0.75, 0.2]], dtype=dtype), 2)).all()

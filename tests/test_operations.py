@@ -12,10 +12,16 @@ from pyfrep_core import (
     blendUnion,
     boundBlendIntersection,
     boundBlendUnion,
+    difference_m,
+    intersection_m,
     offset,
     shell,
     sphere,
+    union_m,
 )
+from pyfrep_core.curvature import curvatures
+from pyfrep_core.diff import value_grad_hessian
+from pyfrep_core.normalization import delta_1, omega_1
 
 RNG = np.random.default_rng(0)
 F1, F2, F3 = (RNG.uniform(-2, 2, 300) for _ in range(3))
@@ -154,3 +160,66 @@ def test_shell_of_a_sphere_is_a_hollow_ball():
     assert np.abs(shell(sphere(edge, r=1.0), 0.2)).max() < 1e-12
     grown = offset(sphere(np.array([[1.1, 0, 0]]), r=1.0), 0.3)  # level set 1 - r^2 = -0.3
     assert grown[0] > 0 and abs(offset(sphere(np.array([[math.sqrt(1.3), 0, 0]]), r=1.0), 0.3)[0]) < 1e-12
+
+
+# ----------------------------------------------------------------------------- R_m functions
+
+
+def r_m_closed_form(a, b, m, sign):
+    """(value, d/da, d/db) of (a + b + sign rho) rho^m, rho = sqrt(a^2 + b^2) > 0 (numpy float64)."""
+    rho = np.sqrt(a * a + b * b)
+    value = (a + b + sign * rho) * rho**m
+    da = (1 + sign * a / rho) * rho**m + (a + b + sign * rho) * m * rho ** (m - 2) * a
+    db = (1 + sign * b / rho) * rho**m + (a + b + sign * rho) * m * rho ** (m - 2) * b
+    return value, da, db
+
+
+R_M = {
+    "union_m": (union_m, 1.0, 1.0),
+    "intersection_m": (intersection_m, -1.0, 1.0),
+    "difference_m": (difference_m, -1.0, -1.0),
+}
+
+
+@pytest.mark.parametrize("m", [0.0, 0.5, 1.0, 2.0, 3.0])
+@pytest.mark.parametrize("name", list(R_M))
+def test_r_m_gradient_equals_the_closed_form_where_it_is_defined(name, m):
+    op, sign, s2 = R_M[name]  # difference_m(f1, f2) = intersection_m(f1, -f2)
+    # random points, and points on the axes (one argument 0, rho > 0: differentiable there)
+    a = np.concatenate([F1[:100], np.zeros(5), [0.5, -1.5, 2.0, -0.25, 1e-3]])
+    b = np.concatenate([F2[:100], [0.5, -1.5, 2.0, -0.25, 1e-3], np.zeros(5)])
+    ta, tb = (torch.tensor(v, requires_grad=True) for v in (a, b))
+    v = op(ta, tb, m=m)
+    da, db = torch.autograd.grad(v.sum(), (ta, tb))
+    want, wa, wb = r_m_closed_form(a, s2 * b, m, sign)
+    np.testing.assert_allclose(v.detach().numpy(), want, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(da.numpy(), wa, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(db.numpy(), s2 * wb, rtol=1e-12, atol=1e-15)
+
+
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
+@pytest.mark.parametrize("m", [0.0, 0.5, 1.0, 2.0])
+@pytest.mark.parametrize("name", list(R_M))
+def test_r_m_at_f1_equal_f2_equal_0_gives_finite_derivatives_and_the_sub_gradient(name, m, dtype):
+    op, sign, s2 = R_M[name]
+    rho0 = torch.finfo(dtype).tiny ** 0.25  # safe_sqrt(0)
+    f = lambda p: op(p[..., 0] + 0.5 * p[..., 2], p[..., 1] - 0.3 * p[..., 2], m=m)  # noqa: E731
+    x = torch.tensor([[0.0, 0.0, 0.0], [-0.25, 0.15, 0.5]], dtype=dtype)  # both on the crease f1 = f2 = 0
+    value, g, h = value_grad_hessian(f, x)
+    assert value.abs().max() <= 2 * rho0 ** (m + 1)
+    # the sub-gradient: grad f1 + s2 grad f2 for m = 0 (the R_0 function, like union), else 0 (the R_m
+    # function is homogeneous of degree m + 1 > 1 in (f1, f2): differentiable there with gradient 0)
+    sub = torch.tensor([1.0, s2, 0.5 - 0.3 * s2], dtype=dtype) * (1.0 if m == 0 else 0.0)
+    torch.testing.assert_close(g, sub.expand(2, 3), rtol=0, atol=2 * rho0**m if m else 4 * torch.finfo(dtype).eps)
+    assert torch.isfinite(h).all()
+    # on f = 0: omega_1 and delta_1 vanish (to rho0), the curvature is undefined (no curvature at a crease)
+    assert omega_1(f, x).abs().max() <= rho0 and delta_1(f, x).abs().max() <= rho0
+    c = curvatures(f, x)
+    assert not c.defined.any() and all(torch.isnan(getattr(c, k)).all() for k in ("H", "K", "kmin", "kmax"))
+
+
+def test_r_m_order_must_be_finite_and_nonnegative():
+    for fn in (union_m, intersection_m, difference_m):
+        for bad in (-1.0, math.nan, math.inf):
+            with pytest.raises(ValueError, match=rf"{fn.__name__}: m must be"):
+                fn(torch.zeros(2), torch.zeros(2), m=bad)

@@ -202,6 +202,31 @@ def test_capsule_ends_and_side():
     np.testing.assert_allclose(values(f, pts), expected, atol=1e-12)
 
 
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
+def test_capsule_with_a_equal_b_is_the_sphere(dtype):
+    # a zero-length segment: the capsule is the ball of that radius (was 0/0 = NaN everywhere)
+    c = (0.1, -0.2, 0.3)
+    rng = np.random.default_rng(11)
+    x = torch.tensor(np.vstack([rng.uniform(-1, 1, (200, 3)), [c, (0.1, -0.2, 0.8)]]), dtype=dtype, requires_grad=True)
+    d = sdf.capsule(x, c, c, 0.5)
+    want = sdf.sphere(x, c, 0.5)
+    eps = torch.finfo(dtype).eps
+    torch.testing.assert_close(d, want, rtol=0, atol=4 * eps)
+    assert abs(float(d[-2].detach()) - 0.5) <= torch.finfo(dtype).tiny ** 0.25 and abs(float(d[-1].detach())) <= 4 * eps
+    (g,) = torch.autograd.grad(d.sum(), x)
+    (g_want,) = torch.autograd.grad(want.sum(), x)
+    assert torch.isfinite(g).all()
+    torch.testing.assert_close(g, g_want, rtol=0, atol=8 * eps)
+    # the exact distance: unit gradient away from the centre, the sub-gradient 0 at it
+    torch.testing.assert_close(g[:-2].norm(dim=1), torch.ones(200, dtype=dtype), rtol=0, atol=8 * eps)
+    assert float(g[-2].abs().max()) == 0.0
+    # a batch of segments where only some are points
+    a = torch.tensor([c, (0.0, 0.0, -1.0)], dtype=dtype)
+    b = torch.tensor([c, (0.0, 0.0, 1.0)], dtype=dtype)
+    p = torch.tensor([[0.6, -0.2, 0.3], [0.0, 0.0, 2.0]], dtype=dtype)
+    torch.testing.assert_close(sdf.capsule(p, a, b, 0.25)[[0, 1], [0, 1]], torch.tensor([-0.25, -0.75], dtype=dtype))
+
+
 def test_capped_cylinder_and_cone_closed_forms():
     f = lambda p: sdf.cappedCylinder(p, (0, 0, -1), (0, 0, 1), 1.0)  # noqa: E731
     pts = [[2, 0, 3], [0, 0, 0.5], [0, 1.5, 0.2], [0, 0, -1.25], [0.6, 0.6, 0.0]]

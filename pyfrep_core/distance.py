@@ -35,10 +35,11 @@ import torch
 from scipy.interpolate import RegularGridInterpolator
 from scipy.spatial import cKDTree
 
-from ._array import as_tensor, check_finite, check_points
+from ._array import as_tensor, check_finite, check_option, check_points
 from .diff import grad, project_to_surface
 from .mesh import Mesh, evaluate_grid, grid_axes, polygonize
 from .model import check_bounds
+from .progress import StopFlag
 
 __all__ = [
     "SurfaceSamples",
@@ -53,6 +54,18 @@ __all__ = [
 
 CHUNK = 1 << 16  # query points per refinement pass: bounds memory
 MAX_RESOLUTION = 512  # grid samples per axis; 512^3 doubles are already 1 GiB
+MAX_COORDINATE = 1e150  # |x| beyond: squared distances (~|x|^2) overflow float64
+
+
+def _check_coordinates(t: torch.Tensor, name: str) -> None:
+    """Refuse coordinates whose squared distances overflow float64 (the KD-tree then finds no sample)."""
+    big = t.abs() > MAX_COORDINATE
+    if bool(big.any()):
+        idx = tuple(int(i) for i in torch.nonzero(big)[0])
+        raise ValueError(
+            f"TrueDistance: {name} has a coordinate {t[idx].item()!r} at index {idx}; the distance is "
+            f"computed in float64 for coordinates up to {MAX_COORDINATE:g} in magnitude"
+        )
 
 
 def _check_callable(f: Any, name: str = "f") -> None:
@@ -60,12 +73,8 @@ def _check_callable(f: Any, name: str = "f") -> None:
         raise TypeError(f"{name} must be callable (points (N, 3) -> values (N,)), got {type(f).__name__}")
 
 
-def _check_resolution(resolution: Any, name: str = "resolution") -> int:
-    if isinstance(resolution, bool) or not isinstance(resolution, int | np.integer):
-        raise TypeError(f"{name} must be an integer, got {resolution!r}")
-    if not 2 <= resolution <= MAX_RESOLUTION:
-        raise ValueError(f"{name} must be in [2, {MAX_RESOLUTION}], got {resolution}")
-    return int(resolution)
+def _check_resolution(resolution: Any, fn: str) -> int:
+    return check_option(resolution, "resolution", fn, "int", minimum=2, maximum=MAX_RESOLUTION)
 
 
 @dataclass
@@ -122,15 +131,15 @@ def surface_samples(
     """
     _check_callable(f)
     bounds = check_bounds(bounds, 3)
-    resolution = _check_resolution(resolution)
+    resolution = _check_resolution(resolution, "surface_samples")
+    n_points = check_option(n_points, "n_points", "surface_samples", "int", minimum=0, none=True)
+    seed = check_option(seed, "seed", "surface_samples", "int", minimum=0, none=True)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # an empty mesh is reported below
         mesh = polygonize(f, bounds, resolution)
     if mesh.is_empty():
         raise ValueError("f has no zero set inside bounds (it does not change sign there): no surface to sample")
-    n_points = 4 * mesh.n_vertices if n_points is None else int(n_points)
-    if n_points < 0:
-        raise ValueError(f"n_points must be >= 0, got {n_points}")
+    n_points = 4 * mesh.n_vertices if n_points is None else n_points
     rng = np.random.default_rng(seed)
     extra = _triangle_samples(mesh, n_points, rng)
     # half of them pushed off the surface first: Newton steps from outside a sharp edge or
@@ -158,7 +167,13 @@ def _tangent(x: torch.Tensor, y: torch.Tensor, g: torch.Tensor) -> torch.Tensor:
 
 
 def _closest_point_steps(
-    f: Callable, x: torch.Tensor, y: torch.Tensor, best: torch.Tensor, steps: int, tol: float = 1e-10
+    f: Callable,
+    x: torch.Tensor,
+    y: torch.Tensor,
+    best: torch.Tensor,
+    steps: int,
+    tol: float = 1e-10,
+    stop: StopFlag | None = None,
 ) -> None:
     """Move surface points ``y`` (in place) toward the closest points of f = 0 to ``x``.
 
@@ -167,12 +182,15 @@ def _closest_point_steps(
     estimate of 1 / (1 - d kappa) from how t changed over the previous step, so the
     iteration converges fast on curved surfaces, where the plain step (alpha = 1)
     overshoots.  A step is kept only if it lands on a closer surface point (``best`` never
-    increases), else alpha is halved.
+    increases), else alpha is halved.  A set ``stop`` flag ends the steps early (checked
+    before each).
     """
     active = torch.arange(len(x))
     t0 = _tangent(x, y, grad(f, y))
     alpha = torch.ones_like(best)
     for _ in range(steps):
+        if stop is not None and stop.is_set():
+            break
         moving = t0.norm(dim=1) > tol
         active, t0, alpha = active[moving], t0[moving], alpha[moving]
         if active.numel() == 0:
@@ -207,8 +225,18 @@ class TrueDistance:
     refine_steps: int = 8
     max_points: int = 1 << 24
 
-    def unsigned(self, points: np.ndarray) -> np.ndarray:
-        """Unsigned distance (N,) float64 for points (N, 3) float64."""
+    def __post_init__(self) -> None:
+        _check_callable(self.f)
+        self.refine_steps = check_option(self.refine_steps, "refine_steps", "TrueDistance", "int", minimum=0)
+        self.max_points = check_option(self.max_points, "max_points", "TrueDistance", "int", positive=True)
+
+    def unsigned(self, points: np.ndarray, stop: StopFlag | None = None) -> np.ndarray:
+        """Unsigned distance (N,) float64 for points (N, 3) float64.
+
+        ``stop`` (an object with ``is_set()``) ends the closest-point steps early once set: the
+        distances are then those of fewer ``refine_steps`` (still never below the true one).
+        """
+        _check_coordinates(torch.as_tensor(points), "points")
         out = np.empty(len(points))
         for i in range(0, len(points), CHUNK):
             q = points[i : i + CHUNK]
@@ -217,7 +245,7 @@ class TrueDistance:
                 x = torch.as_tensor(q, dtype=torch.float64)
                 y = torch.as_tensor(self.samples.points[j], dtype=torch.float64).clone()
                 best = torch.as_tensor(d, dtype=torch.float64).clone()
-                _closest_point_steps(self.f, x, y, best, self.refine_steps)
+                _closest_point_steps(self.f, x, y, best, self.refine_steps, stop=stop)
                 d = best.numpy()
             out[i : i + CHUNK] = d
         return out
@@ -226,6 +254,7 @@ class TrueDistance:
         t, was_numpy = as_tensor(points, "points")
         check_points(t, 3, "points")
         check_finite(t, "points")
+        _check_coordinates(t, "points")
         shape = t.shape[:-1]
         q = t.detach().reshape(-1, 3).to(dtype=torch.float64, device="cpu")
         if q.shape[0] > self.max_points:
@@ -269,10 +298,9 @@ def true_distance(
     0.5
     """
     _check_callable(f)
-    if isinstance(refine_steps, bool) or int(refine_steps) != refine_steps or refine_steps < 0:
-        raise ValueError(f"refine_steps must be an integer >= 0, got {refine_steps!r}")
+    refine_steps = check_option(refine_steps, "refine_steps", "true_distance", "int", minimum=0)
     samples = surface_samples(f, bounds, resolution, n_points, seed)
-    return TrueDistance(f, samples, cKDTree(samples.points), int(refine_steps))
+    return TrueDistance(f, samples, cKDTree(samples.points), refine_steps)
 
 
 @dataclass
@@ -334,9 +362,9 @@ def distance_error(
     _check_callable(approx, "approx")
     _check_callable(f)
     bounds = check_bounds(bounds, 3)
-    resolution = _check_resolution(resolution)
-    if band is not None and not (np.isfinite(band) and band > 0):
-        raise ValueError(f"band must be a positive number, got {band!r}")
+    resolution = _check_resolution(resolution, "distance_error")
+    band = check_option(band, "band", "distance_error", positive=True, none=True)
+    dtype = check_option(dtype, "dtype", "distance_error", "choice", choices=(torch.float32, torch.float64))
     axes = grid_axes(bounds, resolution)
     timing: dict[str, float] = {}
     start = time.perf_counter()
@@ -412,7 +440,7 @@ def fmm_distance(f: Callable, bounds: Any, resolution: int = 128) -> FMMDistance
 
     _check_callable(f)
     bounds = check_bounds(bounds, 3)
-    resolution = _check_resolution(resolution)
+    resolution = _check_resolution(resolution, "fmm_distance")
     axes = grid_axes(bounds, resolution)
     start = time.perf_counter()
     values = evaluate_grid(f, bounds, resolution, dtype=torch.float64)

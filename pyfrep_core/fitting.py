@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from ._array import as_tensor, check_finite
+from ._array import as_tensor, check_finite, check_option, check_points
 from ._threads import intra_op_threads
 from .model import Model
 from .progress import Event, Progress, StopFlag
@@ -173,7 +173,11 @@ def fit_error(model: Model, points: Any, params: Mapping[str, float] | None = No
     >>> fit_error(ball, np.array([[1.0, 0, 0], [0, 2.0, 0]]))
     array([0., 3.])
     """
+    if not isinstance(model, Model):
+        raise TypeError(f"fit_error: model must be a Model declared with @model, got {model!r}")
     x, _ = as_tensor(points, "points", dtype=torch.float64)
+    check_points(x, model.dim, "points")
+    check_finite(x, "points")
     values = model.check(**dict(params or {}))
     with torch.no_grad():
         out = [model(x[i : i + CHUNK], **values).abs() for i in range(0, x.shape[0], CHUNK)]
@@ -471,23 +475,32 @@ def fit(
     """
     fixed, init, param_bounds = dict(fixed or {}), dict(init or {}), dict(param_bounds or {})
     x, stages, box = _check_inputs(model, points, fixed, init, param_bounds, stages)
-    for name, value, least in (("cycles", cycles, 0), ("population_size", population_size, 1),
-                               ("sample_size", sample_size, 1), ("children", children, 1),
-                               ("subsample", subsample, 1), ("final_subsample", final_subsample, 1),
-                               ("finalists", finalists, 1), ("epochs", epochs, 0), ("batch_size", batch_size, 1),
-                               ("polish_iters", polish_iters, 1), ("every", every, 1)):  # fmt: skip
-        if isinstance(value, bool) or not isinstance(value, int) or value < least:
-            raise ValueError(f"{name} must be an integer >= {least}, got {value!r}")
-    if num_threads is not None and (
-        isinstance(num_threads, bool) or not isinstance(num_threads, int) or num_threads < 1
-    ):
-        raise ValueError(f"num_threads must be a positive integer or None, got {num_threads!r}")
-    if not 0 < mutation[0] <= mutation[1]:
-        raise ValueError(f"mutation must be (smallest, largest) with 0 < smallest <= largest, got {mutation!r}")
-    cfg = dict(cycles=cycles, population_size=population_size, sample_size=sample_size, children=children,
-               mutation=mutation, subsample=subsample, final_subsample=final_subsample, finalists=finalists,
-               epochs=epochs, batch_size=batch_size, lr=lr, polish_iters=polish_iters, xtol=xtol,
-               dtype=dtype)  # fmt: skip
+    given = dict(cycles=cycles, population_size=population_size, sample_size=sample_size, children=children,
+                 subsample=subsample, final_subsample=final_subsample, finalists=finalists, epochs=epochs,
+                 batch_size=batch_size, polish_iters=polish_iters)  # fmt: skip
+    cfg: dict[str, Any] = {
+        k: check_option(v, k, "fit", "int", minimum=0 if k in ("cycles", "epochs") else 1) for k, v in given.items()
+    }
+    cfg["lr"] = check_option(lr, "lr", "fit", positive=True)
+    cfg["xtol"] = check_option(xtol, "xtol", "fit", positive=True)
+    cfg["dtype"] = check_option(dtype, "dtype", "fit", "choice", choices=(torch.float32, torch.float64))
+    try:
+        smallest, largest = (float(m) for m in mutation)
+    except (TypeError, ValueError):
+        raise TypeError(f"fit: mutation must be (smallest, largest), two numbers, got {mutation!r}") from None
+    if not (math.isfinite(largest) and 0 < smallest <= largest):
+        raise ValueError(
+            f"fit: mutation must be (smallest, largest), finite, 0 < smallest <= largest, got {mutation!r}"
+        )
+    cfg["mutation"] = (smallest, largest)
+    every = check_option(every, "every", "fit", "int", positive=True)
+    num_threads = check_option(num_threads, "num_threads", "fit", "int", positive=True, none=True)
+    seed = check_option(seed, "seed", "fit", "int", minimum=0, maximum=2**63 - 1, none=True)
+    progress = check_option(progress, "progress", "fit", "bool")
+    if callback is not None and not callable(callback):
+        raise TypeError(f"fit: callback must be callable or None, got {callback!r}")
+    if stop is not None and not callable(getattr(stop, "is_set", None)):
+        raise TypeError(f"fit: stop must have an is_set() method (a threading.Event) or be None, got {stop!r}")
     prob = _Problem(model, {k: float(v) for k, v in fixed.items()}, box)
     gen = torch.Generator().manual_seed(seed if seed is not None else int(torch.randint(2**62, ()).item()))
 

@@ -35,6 +35,7 @@ import numpy as np
 import torch
 from skimage.measure import marching_cubes
 
+from ._array import check_option
 from ._threads import intra_op_threads
 from .diff import project_to_surface, value_and_grad
 from .model import check_bounds
@@ -57,6 +58,7 @@ SPARSE_STEP = 4  # fine cells per coarse block edge in the sparse evaluation
 SPARSE_GUARD = 0.5  # blocks whose corners come within this many block diagonals (|f| / |grad f|) are checked
 SPARSE_MAX_FRACTION = 0.5  # evaluate densely when more of the blocks than this need exact values
 GiB = float(1 << 30)
+GRID_DTYPES = (torch.float32, torch.float64)
 
 
 class GridTooLargeError(ValueError, MemoryError):
@@ -185,6 +187,16 @@ def _as_array(values: Any, dtype: type, name: str) -> np.ndarray:
         raise ValueError(f"{name} must be a numeric array: {err}") from None
 
 
+def _device(device: Any, fn: str) -> torch.device:
+    """``torch.device(device)``, with an error naming the option."""
+    try:
+        return torch.device(device)
+    except (RuntimeError, TypeError) as err:
+        raise ValueError(
+            f"{fn}: device must be a torch device or its name ('cpu', 'cuda'), got {device!r}: {err}"
+        ) from None
+
+
 def _resolution(resolution: Any, dim: int) -> tuple[int, ...]:
     """Validate samples per axis: an integer >= 2, or one per axis."""
     values = (resolution,) * dim if np.ndim(resolution) == 0 else tuple(resolution)
@@ -232,19 +244,29 @@ def grid_memory(resolution: int | tuple[int, ...], dtype: torch.dtype = torch.fl
 
     The grid itself (4 or 8 bytes a sample; marching cubes needs a float32 copy of a
     float64 grid) and a quarter more for marching cubes, 256 MiB for the temporaries of the
-    chunked evaluation and autograd passes, and 400 bytes a vertex for the projection,
-    counting 4 n^2 vertices for n samples per axis (a closed part's typical surface; a
-    lattice has more).
+    chunked evaluation and autograd passes, and 400 bytes a vertex for the projection and
+    the mesh's arrays (measured: 390-430 bytes a vertex from 5e4 to 1e6 vertices).
+
+    Marching cubes puts one vertex on each grid edge the surface crosses.  A closed part
+    spanning the box crosses about 2/3 of the grid lines along each axis, twice each (a
+    sphere inscribed in a cube: pi/4 of them), but a line of ``n`` samples has only ``n - 1``
+    edges: the count is ``2/3 sum_a min(2, n_a - 1) N / n_a`` for N samples, 4 n^2 for a cube
+    of n^3 (n >= 3) and one crossing per line across a slab two samples thick (a face of the
+    part lying in the slab).  A lattice has more.
 
     Examples
     --------
     >>> round(grid_memory(512) / 2**30, 2)
     1.27
+    >>> round(grid_memory((4096, 4096, 2)) / 2**30, 2)  # 11.2 million vertices at most
+    4.58
     """
     res = _resolution(resolution, 3)
+    dtype = check_option(dtype, "dtype", "grid_memory", "choice", choices=GRID_DTYPES)
     per_sample = 4 if dtype == torch.float32 else 8 + 4
-    vertices = 4 * max(res[0] * res[1], res[1] * res[2], res[0] * res[2])
-    return int(math.prod(res) * per_sample * 1.25) + (256 << 20) + 400 * vertices
+    n = math.prod(res)
+    vertices = 2 * sum(min(2, r - 1) * (n // r) for r in res) // 3
+    return int(n * per_sample * 1.25) + (256 << 20) + 400 * vertices
 
 
 def _check_memory(resolution: tuple[int, ...], dtype: torch.dtype) -> None:
@@ -306,6 +328,7 @@ def _call(f: Callable, pts: torch.Tensor) -> tuple[torch.Tensor, float, float]:
         if not isinstance(vals, torch.Tensor) or tuple(vals.shape) != shape:
             got = tuple(vals.shape) if hasattr(vals, "shape") else type(vals).__name__
             raise ValueError(f"f must map points (..., 3) to values (...), got {got} for {(*shape, 3)}")
+        _check_values_dtype(f, vals, pts.dtype)
         lo, hi = torch.aminmax(vals)
         lo, hi = float(lo), float(hi)
         if not (math.isfinite(lo) and math.isfinite(hi)):
@@ -313,6 +336,31 @@ def _call(f: Callable, pts: torch.Tensor) -> tuple[torch.Tensor, float, float]:
             where = pts[(slice(None), *bad)].tolist()
             raise ValueError(f"f is not finite at x = {tuple(where)}: {float(vals[bad])}")
     return vals, lo, hi
+
+
+def _name(f: Callable) -> str:
+    """How an error message names a defining function: its name, else its repr."""
+    while isinstance(f, functools.partial):
+        f = f.func
+    return getattr(f, "__name__", None) or repr(f)
+
+
+def _check_values_dtype(f: Callable, values: torch.Tensor, dtype: torch.dtype) -> None:
+    """Refuse values that are not floating point: an integer or boolean f has no gradient, so
+    neither the vertices' projection onto f = 0 nor the normals (-grad f) exist."""
+    if not values.is_floating_point():
+        raise TypeError(
+            f"f ({_name(f)}) returned {str(values.dtype).removeprefix('torch.')} values for "
+            f"{str(dtype).removeprefix('torch.')} points; a defining function must return floating-point "
+            "values (meshing needs its gradient: the normals, and the vertices' projection onto f = 0)"
+        )
+
+
+def _check_grid_options(fn: str, f: Any, dtype: Any) -> torch.dtype:
+    """f callable and the grid dtype float32 or float64 (an integer grid rounds f and loses its zero set)."""
+    if not callable(f):
+        raise TypeError(f"{fn}: f must be callable (points (..., 3) -> values (...)), got {type(f).__name__}")
+    return check_option(dtype, "dtype", fn, "choice", choices=GRID_DTYPES)
 
 
 def _evaluate_grid(
@@ -398,6 +446,7 @@ def _sparse_grid(
     cx, cy, cz = (a[c] for a, c in zip(axes, corner_index))
     coarse = np.stack(np.meshgrid(cx, cy, cz, indexing="ij"), axis=-1).reshape(-1, 3)
     fc, gc = value_and_grad(f, torch.as_tensor(coarse, dtype=dtype, device=device))
+    _check_values_dtype(f, fc, dtype)
     fc = fc.detach().cpu().numpy().astype(np.float64)
     if not np.isfinite(fc).all():
         bad = int(np.flatnonzero(~np.isfinite(fc))[0])
@@ -589,6 +638,8 @@ def evaluate_grid(
     >>> v.shape, float(v[1, 1, 1]), float(v[0, 0, 0])
     ((3, 3, 3), 1.0, -2.0)
     """
+    dtype = _check_grid_options("evaluate_grid", f, dtype)
+    max_points = check_option(max_points, "max_points", "evaluate_grid", "int", positive=True, none=True)
     res = _resolution(resolution, 3)
     _check_memory(res, dtype)
     axes = grid_axes(bounds, res)
@@ -645,7 +696,11 @@ def polygonize(
     >>> abs(m.volume() - 0.98879) < 0.01, m.vertices.dtype, m.faces.shape[1]
     (True, dtype('float64'), 3)
     """
-    cpu = torch.device(device).type == "cpu"
+    dtype = _check_grid_options("polygonize", f, dtype)
+    project = check_option(project, "project", "polygonize", "bool")
+    sparse = check_option(sparse, "sparse", "polygonize", "bool")
+    tol = check_option(tol, "tol", "polygonize", positive=True, none=True)
+    cpu = _device(device, "polygonize").type == "cpu"
     # one intra-op thread on the CPU: at 2^15-point chunks torch's dispatch, not arithmetic, is the cost
     # (the Fig. 1 part at 256^3: 0.91 s on one thread, 1.29 s on two)
     with intra_op_threads(1 if cpu else None):
@@ -666,8 +721,9 @@ def _polygonize(
         bounds = getattr(f, "bounds", None)
         if bounds is None:
             raise ValueError("bounds must be given for a function without default bounds")
-    if getattr(f, "dim", 3) != 3:
-        raise ValueError(f"polygonize meshes 3-D models; this one has dim={f.dim}")
+    dim = getattr(f, "dim", None)  # None: not declared (a plain function, a normalized one)
+    if dim is not None and dim != 3:
+        raise ValueError(f"polygonize meshes 3-D models; this one has dim={dim}")
     res = _resolution(resolution, 3)
     lo, hi = check_bounds(bounds, 3)
     _check_memory(res, dtype)

@@ -176,6 +176,9 @@ def model(bounds: Any = None, dim: int = 3, **params: Param) -> Callable[[Callab
     >>> ball.params["r"].upper
     0.8
     """
+    from ._array import check_option
+
+    dim = check_option(dim, "dim", "model", "int", positive=True)
 
     def wrap(fn: Callable) -> Model:
         return Model(fn, params, bounds=bounds, dim=dim)

@@ -86,10 +86,10 @@ from typing import Any
 import torch
 from torch import nn
 
-from ._array import as_tensor, check_points
+from ._array import as_tensor, check_option, check_points
 from ._threads import intra_op_threads
 from .diff import value_and_grad
-from .distance import surface_samples, true_distance
+from .distance import MAX_RESOLUTION, surface_samples, true_distance
 from .model import check_bounds
 from .progress import Event, Progress, StopFlag
 
@@ -97,6 +97,8 @@ __all__ = ["RedistancedSDF", "redistance", "load_redistanced"]
 
 FORMAT = "pyfrep-redistanced-1"
 ACTIVATIONS = ("softplus", "silu", "tanh", "relu", "leaky_relu")
+DTYPES = (torch.float32, torch.float64)
+MAX_SEED = 2**63 - 2  # torch.Generator takes 64-bit seeds; the batches use seed + 1
 
 
 class _FourierFeatures(nn.Module):
@@ -157,14 +159,16 @@ class RedistancedSDF(nn.Module):
         if not callable(f):
             raise TypeError(f"f must be callable (points (N, 3) -> values (N,)), got {type(f).__name__}")
         lo, hi = check_bounds(bounds, 3)
-        for name, value in (("width", width), ("depth", depth)):
-            if isinstance(value, bool) or int(value) != value or value < 1:
-                raise ValueError(f"{name} must be a positive integer, got {value!r}")
-        for name, value in (("activation", activation), ("last_activation", last_activation)):
-            if value not in ACTIVATIONS and not (name == "last_activation" and value is None):
-                raise ValueError(f"{name} must be one of {ACTIVATIONS}, got {value!r}")
-        if fourier_features < 0:
-            raise ValueError(f"fourier_features must be >= 0, got {fourier_features}")
+        fn = "RedistancedSDF"
+        width = check_option(width, "width", fn, "int", positive=True)
+        depth = check_option(depth, "depth", fn, "int", positive=True)
+        activation = check_option(activation, "activation", fn, "choice", choices=ACTIVATIONS)
+        last_activation = check_option(last_activation, "last_activation", fn, "choice", choices=ACTIVATIONS, none=True)
+        beta = check_option(beta, "beta", fn, positive=True)
+        fourier_features = check_option(fourier_features, "fourier_features", fn, "int", minimum=0)
+        fourier_scale = check_option(fourier_scale, "fourier_scale", fn, positive=True)
+        seed = check_option(seed, "seed", fn, "int", minimum=0, maximum=MAX_SEED)
+        dtype = check_option(dtype, "dtype", fn, "choice", choices=DTYPES)
         self.f = f
         self.config = {
             "bounds": [list(lo), list(hi)],
@@ -285,10 +289,17 @@ def _uniform(n: int, lo: torch.Tensor, hi: torch.Tensor, gen: torch.Generator) -
 
 
 def _training_pool(
-    f: Callable, lo: tuple, hi: tuple, size: int, surface_resolution: int, seed: int
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """Points (size, 3) float64 and their signed distances: uniform, near-surface and on-surface."""
+    f: Callable, lo: tuple, hi: tuple, size: int, surface_resolution: int, seed: int, stop: StopFlag | None = None
+) -> tuple[torch.Tensor, torch.Tensor] | None:
+    """Points (size, 3) float64 and their signed distances: uniform, near-surface and on-surface.
+
+    None when ``stop`` is set: it is checked after the surface samples and before each
+    closest-point step of the reference distance (the pool's long part, in ``refine_steps``
+    steps over all its points).
+    """
     reference = true_distance(f, (lo, hi), resolution=surface_resolution, seed=seed)
+    if stop is not None and stop.is_set():
+        return None
     surf = torch.as_tensor(reference.samples.points)
     gen = torch.Generator().manual_seed(seed)
     lo_t, hi_t = torch.tensor(lo, dtype=torch.float64), torch.tensor(hi, dtype=torch.float64)
@@ -301,7 +312,11 @@ def _training_pool(
     near = near + sigma * torch.randn(n_near, 3, generator=gen, dtype=torch.float64)
     near = torch.minimum(torch.maximum(near, lo_t), hi_t)
     off = torch.cat([_uniform(n_uniform, lo_t, hi_t, gen), near])
-    d_off = reference(off)
+    unsigned = torch.as_tensor(reference.unsigned(off.numpy(), stop=stop))
+    if stop is not None and stop.is_set():
+        return None
+    with torch.no_grad():
+        d_off = torch.sign(f(off)).to(torch.float64) * unsigned
     x = torch.cat([on, off])
     d = torch.cat([torch.zeros(n_surface, dtype=torch.float64), d_off])
     return x, d
@@ -366,7 +381,10 @@ def redistance(
         Batches of a few hundred points run fastest on one thread: 2 threads took 2.4x
         longer on a busy 2-core machine.
     callback, every, stop, progress : see :mod:`pyfrep_core.progress`; events have stage
-        "redistance", the step and the loss; returning True from the callback stops.
+        "redistance", the step and the loss; returning True from the callback stops.  The stop
+        flag is also checked while the training pool is built (before each closest-point step
+        of its reference distance); stopped there, the untrained network comes back, with an
+        empty ``history``.
 
     Returns
     -------
@@ -374,8 +392,11 @@ def redistance(
 
     Raises
     ------
-    TypeError : f not callable.  ValueError : bad bounds (NaN, inverted), f without zero set
-        in the bounds, non-positive steps or batch, unknown loss.
+    TypeError : f not callable; an option of the wrong type (a string for a number, a number
+        for a flag).  ValueError : bad bounds (NaN, inverted), f without zero set in the bounds,
+        an option out of its range (every number finite; steps, batch, pool_size, every, lr,
+        clip_grad positive; supervised, eikonal >= 0 and not both 0; counts and seed integers),
+        an unknown loss or activation; the message names the option and its value.
     """
     if not callable(f):
         raise TypeError(f"f must be callable (points (N, 3) -> values (N,)), got {type(f).__name__}")
@@ -384,21 +405,32 @@ def redistance(
         if bounds is None:
             raise ValueError("bounds must be given for a function without default bounds")
     lo, hi = check_bounds(bounds, 3)
-    if loss not in ("eikonal", "p-poisson"):
-        raise ValueError(f"loss must be 'eikonal' or 'p-poisson', got {loss!r}")
-    if threads is not None and (isinstance(threads, bool) or int(threads) != threads or threads < 1):
-        raise ValueError(f"threads must be a positive integer or None, got {threads!r}")
-    for name, value in (("steps", steps), ("batch", batch), ("pool_size", pool_size)):
-        if isinstance(value, bool) or int(value) != value or value < 1:
-            raise ValueError(f"{name} must be a positive integer, got {value!r}")
-    if not (lr > 0 and math.isfinite(lr)):
-        raise ValueError(f"lr must be a positive number, got {lr!r}")
-    if clip_grad is not None and not (clip_grad > 0 and math.isfinite(clip_grad)):
-        raise ValueError(f"clip_grad must be a positive number or None, got {clip_grad!r}")
+    fn = "redistance"
+    loss = check_option(loss, "loss", fn, "choice", choices=("eikonal", "p-poisson"))
+    steps = check_option(steps, "steps", fn, "int", positive=True)
+    batch = check_option(batch, "batch", fn, "int", positive=True)
+    pool_size = check_option(pool_size, "pool_size", fn, "int", positive=True)
+    surface_resolution = check_option(
+        surface_resolution, "surface_resolution", fn, "int", minimum=2, maximum=MAX_RESOLUTION
+    )
+    threads = check_option(threads, "threads", fn, "int", positive=True, none=True)
+    every = check_option(every, "every", fn, "int", positive=True)
+    lr = check_option(lr, "lr", fn, positive=True)
+    clip_grad = check_option(clip_grad, "clip_grad", fn, positive=True, none=True)
+    p = check_option(p, "p", fn)
     if loss == "p-poisson" and not p > 1:
-        raise ValueError(f"p must be > 1 for the p-Poisson energy, got {p!r}")
-    if supervised < 0 or eikonal < 0 or supervised + eikonal == 0:
-        raise ValueError(f"weights must be >= 0 and not both 0, got supervised={supervised}, eikonal={eikonal}")
+        raise ValueError(f"redistance: p must be > 1 for the p-Poisson energy, got {p!r}")
+    supervised = check_option(supervised, "supervised", fn, minimum=0.0)
+    eikonal = check_option(eikonal, "eikonal", fn, minimum=0.0)
+    if supervised + eikonal == 0:
+        raise ValueError(f"redistance: supervised and eikonal must not both be 0, got {supervised}, {eikonal}")
+    refit = check_option(refit, "refit", fn, "bool")
+    progress = check_option(progress, "progress", fn, "bool")
+    seed = check_option(seed, "seed", fn, "int", minimum=0, maximum=MAX_SEED)
+    if callback is not None and not callable(callback):
+        raise TypeError(f"redistance: callback must be callable or None, got {callback!r}")
+    if stop is not None and not callable(getattr(stop, "is_set", None)):
+        raise TypeError(f"redistance: stop must have an is_set() method (a threading.Event) or be None, got {stop!r}")
 
     torch_dtype = dtype
     model = RedistancedSDF(
@@ -406,15 +438,20 @@ def redistance(
         fourier_features=fourier_features,
         seed=seed, dtype=torch_dtype,
     )  # fmt: skip
+    if stop is not None and stop.is_set():
+        return model.eval()  # stopped before the pool was built: the untrained network, empty history
     if supervised > 0:
-        pool_x, pool_d = _training_pool(f, lo, hi, int(pool_size), surface_resolution, seed)
+        pool = _training_pool(f, lo, hi, pool_size, surface_resolution, seed, stop)
         fit_weight = supervised
     else:
         # unsupervised: the eikonal equation's boundary condition, d = 0 on the surface (sign(f)
         # alone does not pin h to 0 there), on surface samples
         pool_x = torch.as_tensor(surface_samples(f, (lo, hi), surface_resolution, seed=seed).points)
-        pool_d = torch.zeros(len(pool_x), dtype=torch.float64)
+        pool = pool_x, torch.zeros(len(pool_x), dtype=torch.float64)
         fit_weight = 1.0
+    if pool is None or (stop is not None and stop.is_set()):
+        return model.eval()  # stopped while the pool was built: the untrained network, empty history
+    pool_x, pool_d = pool
     pool_x, pool_d = pool_x.to(torch_dtype), pool_d.to(torch_dtype)
     gen = torch.Generator().manual_seed(seed + 1)
     lo_t, hi_t = torch.tensor(lo, dtype=torch_dtype), torch.tensor(hi, dtype=torch_dtype)

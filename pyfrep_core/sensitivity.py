@@ -23,7 +23,7 @@ from typing import Any
 import torch
 import torch.autograd.forward_ad as fwad
 
-from ._array import as_tensor, check_finite, check_points
+from ._array import as_tensor, check_finite, check_option, check_points
 from .compiled import first_order
 from .diff import CHUNK, value_and_grad
 from .model import Model
@@ -40,6 +40,7 @@ def param_derivative(model: Model, x: Any, name: str, params: dict[str, Any] | N
     x : (N, dim) points, numpy or torch.
     name : the parameter to differentiate by (a declared name).
     params : values of the parameters (defaults filled in).
+    chunk : points per reverse pass (a positive integer): bounds the memory of the graph.
 
     Returns
     -------
@@ -57,6 +58,7 @@ def param_derivative(model: Model, x: Any, name: str, params: dict[str, Any] | N
     """
     t, was_numpy = _points(model, x)
     values = _params(model, name, params)
+    chunk = check_option(chunk, "chunk", "param_derivative", "int", positive=True)
     parts = []
     for i in range(0, t.shape[0], chunk):
         parts.append(_df_dp(model, t[i : i + chunk], name, values))
@@ -77,6 +79,7 @@ def normal_velocity(model: Model, x: Any, name: str, params: dict[str, Any] | No
     x : (N, dim) points, numpy or torch, float32 or float64.
     name : parameter name.
     params : parameter values (defaults filled in).
+    chunk : points per pass (a positive integer).
 
     Returns
     -------
@@ -96,6 +99,7 @@ def normal_velocity(model: Model, x: Any, name: str, params: dict[str, Any] | No
     """
     t, was_numpy = _points(model, x)
     values = _params(model, name, params)
+    chunk = check_option(chunk, "chunk", "normal_velocity", "int", positive=True)
     out = t.new_zeros(t.shape[0])
     for i in range(0, t.shape[0], chunk):
         xi = t[i : i + chunk]

@@ -1,15 +1,40 @@
 """Array plumbing shared by the kernel: numpy in -> numpy out, torch in -> torch out.
 
 Primitives are written once, on torch tensors.  The :func:`frep` decorator lets a
-numpy user call them too: numpy arrays are converted (float64 stays float64) and
-the result is converted back when no torch tensor came in.
+numpy user call them too: numpy arrays are converted and the result is converted back
+when no torch tensor came in.
+
+Input validation: one path for every public entry that takes points or field values
+(:func:`frep` for the catalogue, :class:`~pyfrep_core.model.Model` calls, the analyses
+through :func:`as_tensor`, :func:`check_points` and :func:`check_finite`):
+
+- dtype: float32 or float64 tensors and numpy arrays (lists become float64).  Complex,
+  integer, boolean and half-precision arrays raise TypeError (:func:`check_dtype`): converting
+  them would drop an imaginary part or round silently.  Results come back in the points' dtype.
+- shape: points are (..., d), d = 3 (or 2 for planar models).
+- finite: points, values and parameters must be finite, torch as well as numpy (ValueError
+  naming the function, the argument and the value).
+- empty: pointwise evaluation (primitives, operations, transforms, model calls) of no points
+  gives no values (shape (0,)); entries that need points to work on (derivatives, fitting,
+  sampling, distances) raise ValueError.
+
+The value checks (one isfinite pass) run once per public call: an entry that has checked its
+inputs marks the call (:func:`validated_inputs`) and what it calls skips them, so a model made
+of 30 primitives reads its points once and polygonize's millions of grid points are not read
+again per primitive.  They are skipped too while :func:`tracing` (torch.compile, torch.func),
+where values cannot be read: the kernel checks before it enters such a transform.
 """
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import functools
+import inspect
 import math
-from collections.abc import Callable, Sequence
+import numbers
+import re
+from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
 import numpy as np
@@ -18,13 +43,64 @@ import torch
 Array = torch.Tensor | np.ndarray
 Scalar = float | torch.Tensor
 
+FLOAT_DTYPES = (torch.float32, torch.float64)
+
+# set by an entry that has checked its inputs: the entries it calls skip their value checks
+_VALIDATED: contextvars.ContextVar[bool] = contextvars.ContextVar("pyfrep_inputs_validated", default=False)
+
+
+@contextlib.contextmanager
+def validated_inputs() -> Iterator[None]:
+    """Mark the calls made inside as working on inputs an outer entry has already checked.
+
+    Nested entries (:func:`frep` functions, model calls, :func:`check_finite`) skip their value
+    checks inside, so a model of 30 primitives reads its points once, not 30 times.  The mark is
+    per thread and per task (a :class:`contextvars.ContextVar`).
+
+    >>> import torch
+    >>> with validated_inputs():
+    ...     check_finite(torch.tensor([float("nan")]), "x", "sphere")  # an outer entry checked
+    >>> skip_checks()
+    False
+    """
+    token = _VALIDATED.set(True)
+    try:
+        yield
+    finally:
+        _VALIDATED.reset(token)
+
+
+def skip_checks(*values: Any) -> bool:
+    """True where value checks are skipped: inside :func:`validated_inputs` or while :func:`tracing`.
+
+    >>> skip_checks()
+    False
+    >>> with validated_inputs():
+    ...     skip_checks()
+    True
+    """
+    return torch.compiler.is_compiling() or _VALIDATED.get() or tracing(*values)
+
+
+def _label(fn: str | None, name: str) -> str:
+    return f"{fn}: {name}" if fn else name
+
 
 def _to_torch(value: Any, device: torch.device | None = None) -> Any:
     if isinstance(value, np.ndarray):
         if value.dtype.kind in "iub":
             value = value.astype(np.float64)
-        return torch.from_numpy(np.ascontiguousarray(value)).to(device or "cpu")
+        return _from_numpy(value).to(device or "cpu")
     return value
+
+
+def _from_numpy(arr: np.ndarray) -> torch.Tensor:
+    """A tensor on ``arr``'s memory when torch can share it (contiguous, writable, native byte order)."""
+    if not arr.dtype.isnative:
+        arr = arr.astype(arr.dtype.newbyteorder("="))
+    if not arr.flags.writeable:
+        arr = arr.copy()
+    return torch.from_numpy(np.ascontiguousarray(arr))
 
 
 def _back(value: Any) -> Any:
@@ -39,16 +115,87 @@ def _back(value: Any) -> Any:
     return value
 
 
-def frep(fn: Callable) -> Callable:
-    """Make a torch function accept numpy arrays and return numpy for numpy input.
+def named_error(err: ValueError, fn: str) -> ValueError:
+    """``err`` with its message prefixed by ``fn: `` (unless it already names ``fn``); same type and traceback.
 
-    Torch tensors pass through untouched (no copy, graph kept).  Numpy arrays are converted;
-    the result goes back to numpy only when no tensor came in (a numpy point set with a
-    tensor parameter that requires grad gives a tensor, so the gradient is not lost).
+    An entry uses it on errors raised by what it calls (a point shape found wrong inside a
+    primitive, a degenerate parameter of a primitive inside a model), so every message says
+    which public call failed.
+
+    >>> str(named_error(ValueError("points x must have shape (N, 3), got (4, 2)"), "sphere"))
+    'sphere: points x must have shape (N, 3), got (4, 2)'
     """
+    short = fn.rsplit(".", 1)[-1]  # sdf.shell's own messages say "shell: ..."
+    if len(err.args) == 1 and isinstance(err.args[0], str) and not err.args[0].startswith((f"{fn}:", f"{short}:")):
+        err.args = (f"{fn}: {err.args[0]}",)
+    return err
 
-    @functools.wraps(fn)
-    def wrapper(*args, **kwargs):
+
+# the arguments of a catalogue function that hold points or field values (checked for dtype):
+# the first one (x, f, d, f1, d1) and the further operands of an operation (f2, f3, d2)
+_OPERAND = re.compile(r"[fd][2-9]")
+
+
+def _check_argument(value: Any, name: str, fn: str) -> None:
+    """Refuse a complex or non-finite argument of ``fn`` (tensor, array, number or sequence of numbers)."""
+    if isinstance(value, torch.Tensor | np.ndarray):
+        if value.dtype.kind == "c" if isinstance(value, np.ndarray) else value.is_complex():
+            check_dtype(value, name, fn)
+        if value.dtype.kind == "f" if isinstance(value, np.ndarray) else value.is_floating_point():
+            check_finite(value, name, fn)
+    elif isinstance(value, bool | str):
+        return
+    elif isinstance(value, numbers.Real):
+        if not math.isfinite(value):
+            raise ValueError(f"{fn}: {name} must be finite, got {value!r}")
+    elif isinstance(value, numbers.Complex):
+        raise TypeError(f"{fn}: {name} must be a real number, got {value!r}")
+    elif isinstance(value, list | tuple):
+        for item in value:
+            if isinstance(item, numbers.Number | torch.Tensor | np.ndarray) and not isinstance(item, bool):
+                try:
+                    _check_argument(item, name, fn)
+                except ValueError:
+                    raise ValueError(f"{fn}: {name} must be finite, got {shown(value)!r}") from None
+
+
+def frep(fn: Callable) -> Callable:
+    """Make a torch function of points (or of field values) a checked public entry.
+
+    - Torch tensors pass through untouched (no copy, graph kept); numpy arrays are converted,
+      and the result goes back to numpy only when no tensor came in (a numpy point set with a
+      tensor parameter that requires grad gives a tensor, so the gradient is not lost).
+    - The points (first argument; for an operation its operands f1, f2, f3 / d1, d2) must be
+      float32 or float64 arrays: complex, integer, boolean and half-precision input raise
+      TypeError (:func:`check_dtype`).  The result has their dtype (float32 in, float32 out,
+      numpy or torch).
+    - Every array argument and every numeric parameter must be finite, torch as well as numpy
+      (:func:`check_finite`: ValueError naming the function, the argument and the value).
+      Complex parameters raise TypeError.
+    - No points (shape (0, 3)) give no values (shape (0,)): evaluating ``f(x[mask])`` with an
+      all-False mask is ordinary, as for numpy and torch functions.
+    - Value errors raised inside are prefixed with the function's name (:func:`named_error`).
+
+    The checks run once per public call: inside a checked call (a primitive of a model, the
+    primitives a transform calls) and while :func:`tracing`, the wrapper only converts numpy.
+
+    >>> import numpy as np
+    >>> @frep
+    ... def half(x):
+    ...     return 0.5 * x[..., 0]
+    >>> half(np.ones((2, 3), np.float32)).dtype
+    dtype('float32')
+    >>> half(np.array([[np.inf, 0.0, 0.0]]))
+    Traceback (most recent call last):
+    ...
+    ValueError: half: x contains a non-finite value (inf) at index (0, 0)
+    """
+    names = list(inspect.signature(fn).parameters)
+    operands = [names[0], *(n for n in names[1:] if _OPERAND.fullmatch(n))]
+    points = names[0] == "x"
+    label = f"sdf.{fn.__name__}" if fn.__module__.endswith(".sdf") else fn.__name__
+
+    def convert_and_call(args: tuple, kwargs: dict) -> Any:
         device = None
         has_numpy = False
         for a in (*args, *kwargs.values()):
@@ -58,59 +205,166 @@ def frep(fn: Callable) -> Callable:
                 has_numpy = True
         if not has_numpy:
             return fn(*args, **kwargs)
-        for name, a in (*enumerate(args), *kwargs.items()):
-            if isinstance(a, np.ndarray) and a.dtype.kind == "f" and not np.isfinite(a).all():
-                label = f"argument {name}" if isinstance(name, int) else name
-                raise ValueError(
-                    f"{fn.__name__}: {label} contains NaN or inf (first at {np.argwhere(~np.isfinite(a))[0]})"
-                )
         # numpy beside a tensor (numpy points, a tensor parameter): compute in torch, return torch
         out = fn(*[_to_torch(a, device) for a in args], **{k: _to_torch(v, device) for k, v in kwargs.items()})
         return out if device is not None else _back(out)
 
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        if skip_checks():
+            return convert_and_call(args, kwargs)
+        given = {**dict(zip(names, args, strict=False)), **kwargs}
+        dtype = None
+        for name in operands:
+            if name not in given:
+                continue  # a missing argument: the call itself raises TypeError
+            value = given[name]
+            if isinstance(value, torch.Tensor | np.ndarray):
+                check_dtype(value, name, label)
+                vdt = value.dtype if isinstance(value, torch.Tensor) else torch.from_numpy(value[:0]).dtype
+                dtype = vdt if dtype is None else torch.promote_types(dtype, vdt)
+            elif points or name == names[0] or not isinstance(value, numbers.Real) or isinstance(value, bool):
+                what = "points" if points else "values"
+                raise TypeError(
+                    f"{label}: {name} must be a torch tensor or a numpy array of {what}, got {type(value).__name__}"
+                )
+        for name, value in given.items():
+            _check_argument(value, name, label)
+        if tracing(*given.values()):
+            return convert_and_call(args, kwargs)
+        with validated_inputs():
+            try:
+                out = convert_and_call(args, kwargs)
+            except ValueError as err:
+                raise named_error(err, label)  # noqa: B904  (the same exception, its message prefixed)
+        return _in_dtype(out, dtype)
+
     return wrapper
 
 
-def as_tensor(x: Any, name: str = "x", dtype: torch.dtype | None = None) -> tuple[torch.Tensor, bool]:
-    """Convert ``x`` to a floating torch tensor; also say whether it came in as numpy.
+def _in_dtype(out: Any, dtype: torch.dtype | None) -> Any:
+    """``out`` (a tensor or a numpy array) in ``dtype`` when it is floating and not yet in it."""
+    if dtype is None:
+        return out
+    if isinstance(out, torch.Tensor) and out.is_floating_point() and out.dtype != dtype:
+        return out.to(dtype)
+    if isinstance(out, np.ndarray) and out.dtype.kind == "f":
+        want = torch.empty(0, dtype=dtype).numpy().dtype
+        return out if out.dtype == want else out.astype(want)
+    return out
 
-    Integer input becomes float64 (numpy) or the default dtype (torch).
+
+def check_dtype(x: torch.Tensor | np.ndarray, name: str = "x", fn: str | None = None) -> None:
+    """Raise TypeError unless ``x`` holds float32 or float64 numbers.
+
+    Complex input would lose its imaginary part, integer input would round (a centre 0.5 in
+    integer arithmetic is 0), so neither is converted silently.
+
+    >>> import numpy as np
+    >>> check_dtype(np.zeros(3, np.float32), "x", "sphere")
+    >>> check_dtype(np.zeros(3, np.int64), "x", "sphere")
+    Traceback (most recent call last):
+    ...
+    TypeError: sphere: x must be float32 or float64, got int64; convert it first (x.astype(np.float64))
     """
     if isinstance(x, torch.Tensor):
-        t = x
-        if not t.is_floating_point():
-            t = t.to(dtype or torch.get_default_dtype())
-        elif dtype is not None:
-            t = t.to(dtype)
-        return t, False
-    if isinstance(x, np.ndarray | list | tuple):
+        if x.dtype in FLOAT_DTYPES:
+            return
+        dtype, is_complex, convert = str(x.dtype).removeprefix("torch."), x.is_complex(), f"{name}.double()"
+    else:
+        if x.dtype in (np.float32, np.float64):
+            return
+        dtype, is_complex, convert = str(x.dtype), x.dtype.kind == "c", f"{name}.astype(np.float64)"
+    if is_complex:
+        raise TypeError(
+            f"{_label(fn, name)} must be real (float32 or float64), got {dtype}; "
+            f"pass {name}.real if the imaginary part is to be dropped"
+        )
+    raise TypeError(f"{_label(fn, name)} must be float32 or float64, got {dtype}; convert it first ({convert})")
+
+
+def as_tensor(
+    x: Any, name: str = "x", dtype: torch.dtype | None = None, fn: str | None = None
+) -> tuple[torch.Tensor, bool]:
+    """Points (or values) as a float32/float64 torch tensor; also say whether they came in as numpy.
+
+    Tensors and numpy arrays keep their dtype (float32 stays float32) unless ``dtype`` is given;
+    a numpy array's memory is shared when it can be.  Lists and tuples of numbers become float64
+    (Python numbers carry no precision of their own).  Complex, integer, boolean and
+    half-precision arrays raise TypeError (:func:`check_dtype`); ``fn`` names the caller in messages.
+
+    >>> import numpy as np
+    >>> t, was_numpy = as_tensor(np.zeros((2, 3), np.float32))
+    >>> t.dtype, was_numpy
+    (torch.float32, True)
+    >>> as_tensor([[0, 0, 1]])[0].dtype
+    torch.float64
+    """
+    if isinstance(x, torch.Tensor):
+        check_dtype(x, name, fn)
+        return (x if dtype is None else x.to(dtype)), False
+    if isinstance(x, list | tuple):
         try:
-            arr = np.asarray(x, dtype=np.float64 if dtype is None else None)
+            arr = np.asarray(x)
         except (TypeError, ValueError) as err:
-            raise TypeError(f"{name} must be a numeric array, got {type(x).__name__}: {err}") from None
-        t = torch.from_numpy(np.ascontiguousarray(arr))
-        if dtype is not None:
-            t = t.to(dtype)
-        return t, True
-    raise TypeError(f"{name} must be a torch tensor or a numpy array, got {type(x).__name__}")
+            raise TypeError(f"{_label(fn, name)} must be a numeric array, got {type(x).__name__}: {err}") from None
+        if arr.dtype.kind in "biuf":
+            arr = arr.astype(np.float64)
+        elif arr.dtype.kind != "c":
+            raise TypeError(f"{_label(fn, name)} must be a numeric array, got {type(x).__name__} of {arr.dtype}")
+    elif isinstance(x, np.ndarray):
+        arr = x
+    else:
+        raise TypeError(f"{_label(fn, name)} must be a torch tensor or a numpy array, got {type(x).__name__}")
+    check_dtype(arr, name, fn)
+    t = _from_numpy(arr)
+    return (t if dtype is None else t.to(dtype)), True
 
 
-def check_points(x: torch.Tensor, dim: int | Sequence[int] = 3, name: str = "x") -> None:
-    """Raise ValueError unless ``x`` has shape (..., dim) with at least one point."""
+def check_points(
+    x: torch.Tensor, dim: int | Sequence[int] = 3, name: str = "x", fn: str | None = None, empty: bool = False
+) -> None:
+    """Raise ValueError unless ``x`` has shape (..., dim) and, unless ``empty``, at least one point.
+
+    Pointwise evaluation allows no points (``empty=True``: no values back); entries that need
+    a point to work on (derivatives, fitting, sampling) do not.
+
+    >>> import torch
+    >>> check_points(torch.zeros(0, 3), 3, "x", "grad")
+    Traceback (most recent call last):
+    ...
+    ValueError: grad: x is empty (shape (0, 3)); give at least one point
+    """
     dims = (dim,) if isinstance(dim, int) else tuple(dim)
     if x.ndim < 1 or x.shape[-1] not in dims:
         want = " or ".join(f"(N, {d})" for d in dims)
-        raise ValueError(f"{name} must have shape {want}, got {tuple(x.shape)}")
-    if x.numel() == 0:
-        raise ValueError(f"{name} is empty (shape {tuple(x.shape)})")
+        raise ValueError(f"{_label(fn, name)} must have shape {want}, got {tuple(x.shape)}")
+    if x.numel() == 0 and not empty:
+        raise ValueError(f"{_label(fn, name)} is empty (shape {tuple(x.shape)}); give at least one point")
 
 
-def check_finite(x: torch.Tensor, name: str = "x") -> None:
-    """Raise ValueError naming the first non-finite entry of ``x`` (one device sync)."""
-    bad = ~torch.isfinite(x)
-    if bool(bad.any()):
-        idx = tuple(int(i) for i in torch.nonzero(bad)[0])
-        raise ValueError(f"{name} contains a non-finite value ({x[idx].item()}) at index {idx}")
+def check_finite(x: torch.Tensor | np.ndarray, name: str = "x", fn: str | None = None) -> None:
+    """Raise ValueError naming the first non-finite entry of ``x`` (one pass, one device sync).
+
+    Skipped inside an entry that has already checked its inputs (:func:`validated_inputs`) and
+    while :func:`tracing`.
+
+    >>> import torch
+    >>> check_finite(torch.tensor([[0.0, float("nan")]]), "x", "sphere")
+    Traceback (most recent call last):
+    ...
+    ValueError: sphere: x contains a non-finite value (nan) at index (0, 1)
+    """
+    if isinstance(x, np.ndarray):
+        if skip_checks() or bool(np.isfinite(x).all()):
+            return
+        idx = tuple(int(i) for i in np.argwhere(~np.isfinite(x))[0])
+        raise ValueError(f"{_label(fn, name)} contains a non-finite value ({x[idx]}) at index {idx}")
+    if skip_checks(x) or bool(torch.isfinite(x).all()):
+        return
+    bad = ~torch.isfinite(x.detach())
+    idx = tuple(int(i) for i in torch.nonzero(bad)[0])
+    raise ValueError(f"{_label(fn, name)} contains a non-finite value ({x[idx].item()}) at index {idx}")
 
 
 def vec(v: Any, like: torch.Tensor, n: int = 3, name: str = "center") -> torch.Tensor:
@@ -175,11 +429,9 @@ def tracing(*values: Any) -> bool:
     graph (compile) or raise on a batched tensor (vmap).  The kernel validates its inputs before it
     enters such a transform, so nothing unchecked reaches a model that way.
     """
-    if torch.compiler.is_compiling():
+    if torch.compiler.is_compiling() or torch._C._are_functorch_transforms_active():
         return True
-    return any(
-        isinstance(v, torch.Tensor) and torch._C._functorch.is_functorch_wrapped_tensor(v) for v in values
-    )
+    return any(isinstance(v, torch.Tensor) and torch._C._functorch.is_functorch_wrapped_tensor(v) for v in values)
 
 
 def param_array(value: Any, name: str, fn: str) -> np.ndarray | None:
@@ -192,6 +444,8 @@ def param_array(value: Any, name: str, fn: str) -> np.ndarray | None:
     >>> param_array((1, 2.5), "e", "superQuadric")
     array([1. , 2.5])
     """
+    if torch.compiler.is_compiling():
+        return None  # numbers too: numpy on them would be traced into the graph (a graph break)
     if isinstance(value, torch.Tensor):
         if tracing(value):
             return None

@@ -93,7 +93,7 @@ def _batchable(v: Any, m: int, like: torch.Tensor, name: str) -> torch.Tensor:
 
 def _field(x: torch.Tensor, m: int, kernel: Callable[[torch.Tensor], torch.Tensor], batch: int = 1) -> torch.Tensor:
     """Sum over M elements of ``kernel(points (P, 1, 3)) -> ([B,] P, M)``, in chunks of points."""
-    check_points(x)
+    check_points(x, empty=True)  # no points give no values
     flat = x.reshape(-1, 3)
     chunk = max(1, _CHUNK // (m * batch))
     parts = [kernel(part[:, None, :]).sum(-1) for part in torch.split(flat, chunk)]

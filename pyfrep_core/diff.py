@@ -27,6 +27,7 @@ Conventions shared by every function here:
 from __future__ import annotations
 
 import contextlib
+import contextvars
 import math
 import threading
 import warnings
@@ -36,7 +37,7 @@ from typing import Any, NamedTuple
 
 import torch
 
-from ._array import as_tensor, check_finite, check_points
+from ._array import as_tensor, check_finite, check_points, validated_inputs
 from .compiled import first_order
 
 __all__ = [
@@ -86,15 +87,18 @@ def _map_chunks(fn: Callable, x: torch.Tensor, chunk: int | None, parallel: bool
     """``fn(x[i:i+chunk])`` over chunks of rows of ``x``; the outputs (tuples of tensors) concatenated."""
     size = _chunk_size(x, chunk)
     n = x.shape[0]
-    if n <= size:
-        return fn(x)
-    pieces = [x[i : i + size] for i in range(0, n, size)]
-    # not from inside a worker (an f that itself differentiates): waiting on the pool could deadlock
-    nested = threading.current_thread().name.startswith("pyfrep-diff")
-    if parallel and not nested and x.device.type == "cpu" and torch.get_num_threads() > 1:
-        results = list(_workers().map(fn, pieces))
-    else:
-        results = [fn(p) for p in pieces]
+    # the entries check x once (_points); the primitives of f do not read it again, here or in a worker
+    with validated_inputs():
+        if n <= size:
+            return fn(x)
+        pieces = [x[i : i + size] for i in range(0, n, size)]
+        # not from inside a worker (an f that itself differentiates): waiting on the pool could deadlock
+        nested = threading.current_thread().name.startswith("pyfrep-diff")
+        if parallel and not nested and x.device.type == "cpu" and torch.get_num_threads() > 1:
+            contexts = [contextvars.copy_context() for _ in pieces]  # one copy per task: a context runs once at a time
+            results = list(_workers().map(lambda c, p: c.run(fn, p), contexts, pieces))
+        else:
+            results = [fn(p) for p in pieces]
     return tuple(torch.cat(parts) for parts in zip(*results))
 
 

@@ -35,7 +35,7 @@ import numpy as np
 import torch
 from skimage.measure import marching_cubes
 
-from ._array import check_option
+from ._array import check_option, validated_inputs
 from ._threads import intra_op_threads
 from .diff import project_to_surface, value_and_grad
 from .model import check_bounds
@@ -323,7 +323,8 @@ def _call(f: Callable, pts: torch.Tensor) -> tuple[torch.Tensor, float, float]:
     Raises ValueError for a wrong output shape or a non-finite value (naming the point).
     """
     with torch.no_grad():
-        vals = f(pts.movedim(0, -1))
+        with validated_inputs():  # grid points from checked bounds: the primitives of f need not read them
+            vals = f(pts.movedim(0, -1))
         shape = tuple(pts.shape[1:])
         if not isinstance(vals, torch.Tensor) or tuple(vals.shape) != shape:
             got = tuple(vals.shape) if hasattr(vals, "shape") else type(vals).__name__

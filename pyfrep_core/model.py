@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import functools
 import math
+import numbers
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -24,14 +25,27 @@ from typing import Any
 import numpy as np
 import torch
 
-from ._array import as_tensor
+from ._array import as_tensor, check_finite, check_param, check_points, named_error, skip_checks, validated_inputs
 
 Bounds = tuple[tuple[float, ...], tuple[float, ...]]
 
 
 @dataclass(frozen=True)
 class Param:
-    """One scalar shape parameter: default value, closed range [lower, upper] and a label."""
+    """One scalar shape parameter: default value, closed range [lower, upper] and a label.
+
+    default, lower and upper are real numbers of any type (``int``, ``float``, numpy scalars,
+    0-d numpy arrays and tensors); other types than ``int`` and ``float`` are stored as ``float``.
+    ``bool`` is refused (TypeError), as are NaN and inf (ValueError).
+
+    >>> import numpy as np
+    >>> Param(np.float32(0.5), 0, 1).default
+    0.5
+    >>> Param(True, 0, 1)
+    Traceback (most recent call last):
+    ...
+    TypeError: Param default must be a real number, got True
+    """
 
     default: float
     lower: float
@@ -41,8 +55,16 @@ class Param:
     def __post_init__(self) -> None:
         for name in ("default", "lower", "upper"):
             value = getattr(self, name)
-            if not isinstance(value, int | float) or not math.isfinite(value):
+            number = value
+            if isinstance(value, np.ndarray | torch.Tensor) and value.ndim == 0:
+                number = value.item()
+            if isinstance(number, bool | np.bool_) or not isinstance(number, numbers.Real):
+                raise TypeError(f"Param {name} must be a real number, got {value!r}")
+            if type(number) not in (int, float):
+                number = float(number)
+            if not math.isfinite(number):
                 raise ValueError(f"Param {name} must be a finite number, got {value!r}")
+            object.__setattr__(self, name, number)
         if self.lower >= self.upper:
             raise ValueError(f"Param lower ({self.lower}) must be below upper ({self.upper})")
         if not self.lower <= self.default <= self.upper:
@@ -130,13 +152,39 @@ class Model:
         return full
 
     def __call__(self, x: Any, **overrides: Any) -> Any:
-        """Evaluate f at points ``x`` (..., dim); tensors of shape (B,) as parameters give (B, ...)."""
-        t, was_numpy = as_tensor(x, "x")
-        if t.ndim < 1 or t.shape[-1] != self.dim:
-            raise ValueError(f"x must have shape (N, {self.dim}), got {tuple(t.shape)}")
-        if was_numpy and not np.isfinite(x).all():
-            raise ValueError(f"x contains NaN or inf (first at {np.argwhere(~np.isfinite(np.asarray(x)))[0]})")
+        """Evaluate f at points ``x`` (..., dim); tensors of shape (B,) as parameters give (B, ...).
+
+        The points are checked here, once (the primitives inside do not check them again):
+        float32 or float64 tensors or numpy arrays, or lists (float64), of shape (..., dim), finite;
+        complex, integer and boolean arrays raise TypeError, NaN and inf ValueError naming the
+        model and the first bad point.  Parameter values (numbers, 0-d tensors, (B,) tensors or
+        arrays) must be finite: ValueError naming the parameter.  The result has the points' dtype
+        (numpy float32 in, numpy float32 out).  No points, shape (0, dim), give no values, shape (0,).
+        Under torch.compile and torch.func transforms, and inside a checked call, nothing is read.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from pyfrep_core import model, Param, sphere
+        >>> @model(r=Param(0.5, 0.1, 0.9))
+        ... def ball(x, r):
+        ...     return sphere(x, r=r)
+        >>> ball(np.zeros((2, 3), np.float32)).dtype, ball(np.zeros((0, 3))).shape
+        (dtype('float32'), (0,))
+        >>> ball(np.zeros((1, 3)), r=float("nan"))
+        Traceback (most recent call last):
+        ...
+        ValueError: ball: r must be finite, got nan
+        """
+        label = self.__name__
+        t, was_numpy = as_tensor(x, "x", fn=label)
+        check_points(t, self.dim, "x", fn=label, empty=True)
         values = self._resolve(overrides)
+        check = not skip_checks(t, *values.values())
+        if check:
+            check_finite(t, "x", label)
+            for name, v in values.items():
+                check_param(v, name, label)
         batch = None
         for name, v in values.items():
             if isinstance(v, np.ndarray):
@@ -149,7 +197,16 @@ class Model:
                 batch = v.shape[0]
                 v = v.to(t.dtype).reshape(batch, *([1] * (t.ndim - 1)))
             values[name] = v
-        out = self.fn(t, **values)
+        if check:
+            with validated_inputs():
+                try:
+                    out = self.fn(t, **values)
+                except ValueError as err:
+                    raise named_error(err, label)  # noqa: B904  (the same exception, its message prefixed)
+            if isinstance(out, torch.Tensor) and out.is_floating_point() and out.dtype != t.dtype:
+                out = out.to(t.dtype)
+        else:
+            out = self.fn(t, **values)
         if batch is not None and out.shape[0] != batch:
             out = out.expand(batch, *t.shape[:-1])
         return out.detach().cpu().numpy() if was_numpy else out

@@ -589,10 +589,11 @@ def _pow0(t: torch.Tensor, p: float | torch.Tensor) -> torch.Tensor:
     """``t ** p`` for t >= 0 with value 0 and a finite (zero) gradient at t = 0.
 
     The double ``where`` keeps the unused branch away from 0 ** (negative) = inf, which
-    would otherwise turn into NaN gradients (superellipsoids with exponents < 1).
+    would otherwise turn into NaN gradients (superellipsoids with exponents < 1).  A NaN
+    stays NaN (a test ``t > 0`` would map it to 0, and a NaN point would read as inside).
     """
-    positive = t > 0
-    return torch.where(positive, torch.where(positive, t, torch.ones_like(t)) ** p, torch.zeros_like(t))
+    nonzero = t != 0
+    return torch.where(nonzero, torch.where(nonzero, t, torch.ones_like(t)) ** p, torch.zeros_like(t))
 
 
 def _super_ellipsoid(u: torch.Tensor, v: torch.Tensor, w: torch.Tensor, s1: float, s2: float) -> torch.Tensor:

@@ -78,6 +78,7 @@ True
 
 from __future__ import annotations
 
+import contextlib
 import math
 from collections.abc import Callable
 from pathlib import Path
@@ -86,7 +87,7 @@ from typing import Any
 import torch
 from torch import nn
 
-from ._array import as_tensor, check_option, check_points
+from ._array import as_tensor, check_finite, check_option, check_points, skip_checks, validated_inputs
 from ._threads import intra_op_threads
 from .diff import value_and_grad
 from .distance import MAX_RESOLUTION, surface_samples, true_distance
@@ -224,9 +225,15 @@ class RedistancedSDF(nn.Module):
             return torch.sign(self.f(x.detach()))
 
     def forward(self, x: Any) -> Any:
-        t, was_numpy = as_tensor(x, "x")
-        check_points(t, 3, "x")
-        d = (self.sign(t).to(self.dtype) * self.h(t)).to(t.dtype)
+        """The redistanced field at points x (..., 3), checked as a model call checks them.
+
+        float32/float64 and finite (ValueError naming the first bad point); no points give no values.
+        """
+        t, was_numpy = as_tensor(x, "x", fn="RedistancedSDF")
+        check_points(t, 3, "x", fn="RedistancedSDF", empty=True)
+        check_finite(t, "x", "RedistancedSDF")
+        with contextlib.nullcontext() if skip_checks(t) else validated_inputs():
+            d = (self.sign(t).to(self.dtype) * self.h(t)).to(t.dtype)
         return d.detach().cpu().numpy() if was_numpy else d
 
     def save(self, path: str | Path) -> None:

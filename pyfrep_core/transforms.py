@@ -61,7 +61,7 @@ def _stack(a: torch.Tensor, b: torch.Tensor, c: torch.Tensor) -> torch.Tensor:
 
 
 def _points(x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    check_points(x)
+    check_points(x, empty=True)  # no points give no values
     return x[..., 0], x[..., 1], x[..., 2]
 
 
@@ -108,7 +108,7 @@ def translate(x: torch.Tensor, offset: Vector) -> torch.Tensor:
     >>> translate(torch.tensor([[1.0, 2.0, 3.0]]), (1.0, 1.0, 1.0))
     tensor([[0., 1., 2.]])
     """
-    check_points(x)
+    check_points(x, empty=True)  # no points give no values
     check_param(offset, "offset", "translate")
     return x - vec(offset, x, name="offset")
 
@@ -157,7 +157,7 @@ def scale(x: torch.Tensor, factor: Number) -> torch.Tensor:
     >>> scale(torch.tensor([[2.0, 4.0, 6.0]]), 2.0)
     tensor([[1., 2., 3.]])
     """
-    check_points(x)
+    check_points(x, empty=True)  # no points give no values
     check_param(factor, "factor", "scale", nonzero=True)
     return x / _num(factor, x)[..., None]
 

@@ -294,7 +294,7 @@ def test_bad_input_raises():
         convArc(x, [0, 0, 0], 1.0, 400.0, [0, 0, 1], 0.0, 1.0, 0.1)
     with pytest.raises(ValueError, match="axis"):
         convArc(x, [0, 0, 0], 1.0, 90.0, [0, 0, 0], 0.0, 1.0, 0.1)
-    with pytest.raises(ValueError, match="non-finite"):
+    with pytest.raises(ValueError, match=r"convPoint: vect must be finite, got \[0, nan, 0\]"):
         convPoint(x, [0, float("nan"), 0], 1.0, 0.1)
     with pytest.raises(ValueError, match="x must have shape"):
         convPoint(torch.zeros(3, 2), [0, 0, 0], 1.0, 0.1)

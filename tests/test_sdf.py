@@ -348,8 +348,7 @@ def test_numpy_in_numpy_out_and_float32():
 def test_bad_input_raises_naming_it():
     with pytest.raises(ValueError, match=r"\(5, 2\)"):
         sdf.box(np.zeros((5, 2)))
-    with pytest.raises(ValueError, match=r"\(0, 3\)"):
-        sdf.sphere(np.zeros((0, 3)))
+    assert sdf.sphere(np.zeros((0, 3))).shape == (0,)  # no points, no values (documented in _array)
     with pytest.raises(ValueError, match="center must have 3 components"):
         sdf.sphere(np.zeros((5, 3)), center=(0, 0))
     with pytest.raises(ValueError, match="axis"):

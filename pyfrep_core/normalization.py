@@ -36,9 +36,11 @@ import re
 from collections.abc import Callable
 from typing import Any
 
+import numpy as np
 import torch
 
-from .diff import _evaluate, _leaf, _map_chunks, _out, _points, _vjp
+from ._array import check_memory
+from .diff import _chunk_size, _evaluate, _leaf, _map_chunks, _out, _points, _vjp
 
 __all__ = ["omega_1", "omega_k", "delta_1", "normal_derivative", "normalized", "Normalized"]
 
@@ -73,6 +75,38 @@ def _check_order(k: Any, name: str = "k") -> int:
     if isinstance(k, bool) or not isinstance(k, int) or k < 1:
         raise ValueError(f"{name} must be an integer >= 1, got {k!r}")
     return k
+
+
+# Memory of omega_k, measured (peak RSS, float64, CPU, f = a sphere, at 1 and 100 points): k = 3 takes
+# 14 MiB + ~40 KiB a point, k = 4 1.1 GiB + 6 MiB a point (14 s at one point).  omega_k nests
+# L = k (k + 1) / 2 normal derivatives (omega_1 one, then 2, 3, ..., k more), and each nested backward
+# pass differentiates the whole graph built so far, so the graph grows geometrically with L: by about
+# x3 a level here (x20 from k = 2 to k = 3, three levels; x83 from k = 3 to k = 4, four levels).  So
+# k = 5 (15 levels) needs 3^5 = 243 times k = 4: about 270 GiB for a sphere at one point.  The estimate
+# below scales the k = 4 figures by 3^(L - 10); a larger f (more operations) needs more than that.
+OMEGA4_BYTES = 1.1 * 2**30
+OMEGA4_BYTES_PER_POINT = 6 * 2**20
+OMEGA_GROWTH_PER_LEVEL = 3.0
+
+
+def _check_omega_memory(k: int, x: Any, create_graph: bool, chunk: int | None) -> None:
+    """MemoryBudgetError when omega_k's nested derivatives cannot fit (see ``OMEGA4_BYTES``)."""
+    try:
+        shape = tuple(x.shape) if isinstance(x, torch.Tensor | np.ndarray) else np.shape(x)
+    except ValueError:  # ragged: _points says what is wrong
+        return
+    n = math.prod(shape[:-1]) if len(shape) > 1 else 1
+    device = x.device if isinstance(x, torch.Tensor) else torch.device("cpu")
+    size = _chunk_size(x if isinstance(x, torch.Tensor) else torch.empty(0), chunk)
+    # points differentiated at once: all of them with a graph kept, else chunks (in parallel on the CPU)
+    live = n if create_graph or n <= size else size * (torch.get_num_threads() if device.type == "cpu" else 1)
+    scale = OMEGA_GROWTH_PER_LEVEL ** (k * (k + 1) // 2 - 10)
+    check_memory(
+        (OMEGA4_BYTES + OMEGA4_BYTES_PER_POINT * live) * scale,
+        "omega_k",
+        f"k={k} ({k * (k + 1) // 2} nested derivatives) at {live} point{'s' * (live != 1)} at once",
+        "use k <= 3 (k = 4 only for a few points, with chunk=)",
+    )
 
 
 def _apply(kernel: Callable, x: Any, create_graph: bool, chunk: int | None) -> Any:
@@ -116,7 +150,10 @@ def omega_k(f: Callable, x: Any, k: int = 2, create_graph: bool = False, chunk: 
     """Rvachev's normalization to order k by the paper's recursion, shape (N,).
 
     ``omega_k = omega_{k-1} - omega_1^k / k! * d^k omega_{k-1} / dn^k`` with n = grad f/|grad f|;
-    k = 1 is :func:`omega_1`.  NaN where grad f = 0 (k >= 2).
+    k = 1 is :func:`omega_1`.  NaN where grad f = 0 (k >= 2).  The nested derivatives grow
+    about threefold with each of the k(k+1)/2 levels: a call whose estimate exceeds the available
+    memory raises :class:`~pyfrep_core._array.MemoryBudgetError` up front (k = 5 always does: about
+    270 GiB at a single point; k = 4 takes 1.1 GiB + 6 MiB a point).
 
     Examples
     --------
@@ -127,6 +164,7 @@ def omega_k(f: Callable, x: Any, k: int = 2, create_graph: bool = False, chunk: 
     True
     """
     k = _check_order(k)
+    _check_omega_memory(k, x, create_graph, chunk)
     return _apply(lambda xr: _omegas(*_field(f, xr), xr, k), x, create_graph, chunk)
 
 

@@ -297,6 +297,7 @@ def blendDifference(
     >>> blendDifference(torch.tensor([3.0]), torch.tensor([-4.0]), a0=-1.0)
     tensor([1.9615])
     """
+    _check_extents("blendDifference", a0=a0, a1=a1, a2=a2)
     return blendIntersection(f1, -f2, a0, a1, a2)
 
 

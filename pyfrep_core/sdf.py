@@ -346,11 +346,15 @@ def torus(
     >>> torus(torch.tensor([[1.0, 0.0, 0.0], [0.0, 0.0, 0.0]]), R=1.0, r=0.25)
     tensor([ 0.2500, -0.7500])
     """
+    return _torus(x, R, r, center, _axis(axis), "sdf.torus")
+
+
+def _torus(x: torch.Tensor, R: Scalar, r: Scalar, center: Vector, axis: int, fn: str) -> torch.Tensor:
     x = _points(x)
-    check_param(R, "R", "sdf.torus", nonnegative=True)  # R = 0 is the ball of radius r; R < 0 is no torus
-    check_param(r, "r", "sdf.torus", positive=True)
-    check_param(center, "center", "sdf.torus")
-    rho, h = _radial_axial(x - vec(center, x), _axis(axis))
+    check_param(R, "R", fn, nonnegative=True)  # R = 0 is the ball of radius r; R < 0 is no torus
+    check_param(r, "r", fn, positive=True)
+    check_param(center, "center", fn)
+    rho, h = _radial_axial(x - vec(center, x), axis)
     return r - safe_sqrt((rho - R) ** 2 + h * h)
 
 
@@ -364,7 +368,7 @@ def torusX(x: torch.Tensor, center: Vector = (0.0, 0.0, 0.0), R: Scalar = 1.0, r
     >>> torusX(torch.tensor([[0.0, 1.0, 0.0]]), R=1.0, r=0.25)
     tensor([0.2500])
     """
-    return torus(x, R, r, center, "x")
+    return _torus(x, R, r, center, 0, "sdf.torusX")
 
 
 @frep
@@ -377,7 +381,7 @@ def torusY(x: torch.Tensor, center: Vector = (0.0, 0.0, 0.0), R: Scalar = 1.0, r
     >>> torusY(torch.tensor([[0.0, 0.0, 1.5]]), R=1.0, r=0.25)
     tensor([-0.2500])
     """
-    return torus(x, R, r, center, "y")
+    return _torus(x, R, r, center, 1, "sdf.torusY")
 
 
 @frep
@@ -390,7 +394,7 @@ def torusZ(x: torch.Tensor, center: Vector = (0.0, 0.0, 0.0), R: Scalar = 1.0, r
     >>> torusZ(torch.tensor([[1.0, 0.0, 0.1]]), R=1.0, r=0.25)
     tensor([0.1500])
     """
-    return torus(x, R, r, center, "z")
+    return _torus(x, R, r, center, 2, "sdf.torusZ")
 
 
 @frep
@@ -839,6 +843,7 @@ def smoothDifference(d1: torch.Tensor, d2: torch.Tensor, k: Scalar = 0.1) -> tor
     >>> smoothDifference(torch.tensor([0.0, 1.0]), torch.tensor([0.0, 1.0]), k=0.4)
     tensor([-0.1000, -1.0000])
     """
+    check_param(k, "k", "sdf.smoothDifference", nonnegative=True)
     return smoothIntersection(d1, -d2, k)
 
 

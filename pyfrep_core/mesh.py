@@ -219,6 +219,7 @@ def grid_axes(bounds: Any, resolution: int | tuple[int, ...], dim: int = 3) -> l
     >>> grid_axes(((0, 0, 0), (1, 2, 1)), 3)[1]
     array([0., 1., 2.])
     """
+    dim = check_option(dim, "dim", "grid_axes", "int", positive=True)
     lo, hi = check_bounds(bounds, dim)
     res = _resolution(resolution, dim)
     return [np.linspace(a, b, r) for a, b, r in zip(lo, hi, res)]
@@ -641,6 +642,7 @@ def evaluate_grid(
     """
     dtype = _check_grid_options("evaluate_grid", f, dtype)
     max_points = check_option(max_points, "max_points", "evaluate_grid", "int", positive=True, none=True)
+    device = _device(device, "evaluate_grid")
     res = _resolution(resolution, 3)
     _check_memory(res, dtype)
     axes = grid_axes(bounds, res)

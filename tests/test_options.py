@@ -22,7 +22,7 @@ import torch
 from pyfrep_core import Param, fit, model, polygonize, sample_surface, sphere
 from pyfrep_core.distance import TrueDistance, distance_error, fmm_distance, surface_samples, true_distance
 from pyfrep_core.fitting import fit_error
-from pyfrep_core.mesh import evaluate_grid, grid_memory
+from pyfrep_core.mesh import evaluate_grid, grid_axes, grid_memory
 from pyfrep_core.normalization import normalized
 from pyfrep_core.redistancing import RedistancedSDF, redistance
 from pyfrep_core.sensitivity import normal_velocity, param_derivative
@@ -185,7 +185,9 @@ BAD = [
         ("evaluate_grid", lambda v=v: evaluate_grid(ball, BOX, 8, max_points=v), "max_points", v, ValueError)
         for v in (0, 2.5)
     ],
+    ("evaluate_grid", lambda: evaluate_grid(ball, BOX, 8, device="tpu:x"), "device", "tpu:x", ValueError),
     ("grid_memory", lambda: grid_memory(8, dtype=torch.int8), "dtype", torch.int8, ValueError),
+    *[("grid_axes", lambda v=v: grid_axes(BOX, 8, dim=v), "dim", v, ValueError) for v in (0, 1.5)],
 ]
 
 

@@ -452,6 +452,12 @@ def param_array(value: Any, name: str, fn: str) -> np.ndarray | None:
         return value.detach().cpu().double().numpy()
     if isinstance(value, list | tuple) and tracing(*value):
         return None
+    if isinstance(value, list | tuple) and any(isinstance(v, torch.Tensor) for v in value):
+        try:  # batched components ((B, 1) from a Model) beside numbers, broadcast as vec() does
+            comps = [torch.as_tensor(v).detach().cpu().double() for v in value]
+            return torch.stack(torch.broadcast_tensors(*comps), dim=-1).numpy()
+        except (TypeError, ValueError, RuntimeError):
+            raise TypeError(f"{fn}: {name} must be numbers or tensors that broadcast, got {value!r}") from None
     try:
         return np.asarray(
             [v.detach().cpu().double() if isinstance(v, torch.Tensor) else v for v in value]

@@ -846,7 +846,7 @@ def _f64(f: Callable, x: np.ndarray, device: Any) -> np.ndarray:
 
     def chunk(s: int) -> None:
         t = torch.as_tensor(x[s : s + size], dtype=torch.float64, device=device)
-        with torch.no_grad():
+        with torch.no_grad(), validated_inputs():  # points on grid edges: finite, not read again per primitive
             out[s : s + size] = f(t).cpu().numpy()
 
     _map(chunk, list(range(0, len(x), size)), device)

@@ -369,15 +369,28 @@ def test_a_model_of_twenty_primitives_reads_its_points_once(monkeypatch):
 
 
 def test_grad_and_polygonize_do_not_read_points_per_primitive(monkeypatch):
+    import pyfrep_core._array as array
+
+    checks = []
+    check_finite = array.check_finite
+
+    def counting(x, name="x", fn=None):
+        checks.append(fn)
+        return check_finite(x, name, fn)
+
+    monkeypatch.setattr(array, "check_finite", counting)  # what a catalogue function calls when it checks
+    plain = lambda p: twenty.fn(p, r=0.5)  # noqa: E731  (20 primitives, no Model around them)
     x = torch.rand(5000, 3, dtype=torch.float64) - 0.5
-    calls = _count_point_passes(monkeypatch, x.numel())
-    pyfrep_core.grad(lambda p: twenty.fn(p, r=0.5), x)
-    assert len(calls) == 1  # grad's own check; none per primitive, in the calling thread or its workers
-    calls.clear()
-    n = 17**3
-    calls_grid = _count_point_passes(monkeypatch, 3 * n)
-    pyfrep_core.polygonize(lambda p: twenty.fn(p, r=0.5), ((-1.5, -1, -1), (1.5, 1, 1)), resolution=17, project=False)
-    assert calls_grid == []  # grid points are built from checked bounds: not read again per primitive
+    plain(x)
+    assert len(checks) == 20 + 19 * 2  # alone, each public call checks: 20 spheres, 19 unions of 2 operands
+    checks.clear()
+    # grad checks x once (diff's entry) and evaluates in chunks, in worker threads: none checks again
+    g = pyfrep_core.grad(plain, x, chunk=1000)
+    assert checks == []
+    torch.testing.assert_close(g, pyfrep_core.grad(plain, x), rtol=0, atol=0)
+    # polygonize builds its grid from checked bounds and projects vertices onto f = 0: none re-read
+    mesh = pyfrep_core.polygonize(plain, ((-1.5, -1, -1), (1.5, 1, 1)), resolution=17)
+    assert checks == [] and len(mesh.faces) > 0
 
 
 def test_vmap_and_grad_transforms_of_a_model_still_work():

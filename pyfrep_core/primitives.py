@@ -62,7 +62,7 @@ def sphere(x: torch.Tensor, center: Center = (0.0, 0.0, 0.0), r: float = 1.0) ->
     ----------
     x : (..., 3) points.
     center : (3,) center.
-    r : radius (same length unit as x).
+    r : radius (> 0, same length unit as x).
 
     Examples
     --------
@@ -196,8 +196,8 @@ def torusX(x: torch.Tensor, center: Center = (0.0, 0.0, 0.0), R: float = 1.0, r:
     ----------
     x : (..., 3) points.
     center : (3,) center of the torus.
-    R : radius of the tube's center circle.
-    r : radius of the tube.
+    R : radius of the tube's center circle (>= 0; R = 0 is the ball of radius r).
+    r : radius of the tube (> 0).
 
     Returns
     -------
@@ -220,8 +220,8 @@ def torusY(x: torch.Tensor, center: Center = (0.0, 0.0, 0.0), R: float = 1.0, r:
     ----------
     x : (..., 3) points.
     center : (3,) center of the torus.
-    R : radius of the tube's center circle.
-    r : radius of the tube.
+    R : radius of the tube's center circle (>= 0; R = 0 is the ball of radius r).
+    r : radius of the tube (> 0).
 
     Returns
     -------
@@ -244,8 +244,8 @@ def torusZ(x: torch.Tensor, center: Center = (0.0, 0.0, 0.0), R: float = 1.0, r:
     ----------
     x : (..., 3) points.
     center : (3,) center of the torus.
-    R : radius of the tube's center circle.
-    r : radius of the tube.
+    R : radius of the tube's center circle (>= 0; R = 0 is the ball of radius r).
+    r : radius of the tube (> 0).
 
     Returns
     -------
@@ -302,7 +302,7 @@ def ellipse(x: torch.Tensor, center: Center2 = (0.0, 0.0), a: float = 1.0, b: fl
     ----------
     x : (..., 2) points of the plane ((..., 3) accepted, z ignored).
     center : (2,) center.
-    a, b : semi-axes.
+    a, b : semi-axes (> 0).
 
     Returns
     -------
@@ -332,7 +332,7 @@ def rectangle(x: torch.Tensor, vertex: Center2 = (0.0, 0.0), dx: float = 1.0, dy
     ----------
     x : (..., 2) points of the plane ((..., 3) accepted, z ignored).
     vertex : (2,) corner with the smallest coordinates.
-    dx, dy : side lengths.
+    dx, dy : side lengths (> 0).
 
     Returns
     -------
@@ -455,7 +455,7 @@ def coneX(x: torch.Tensor, center: Center = (0.0, 0.0, 0.0), R: float = 1.0) -> 
     ----------
     x : (..., 3) points.
     center : (3,) apex.
-    R : radius of the cross-section at unit distance from the apex.
+    R : radius of the cross-section at unit distance from the apex (> 0).
 
     Returns
     -------
@@ -478,7 +478,7 @@ def coneY(x: torch.Tensor, center: Center = (0.0, 0.0, 0.0), R: float = 1.0) -> 
     ----------
     x : (..., 3) points.
     center : (3,) apex.
-    R : radius of the cross-section at unit distance from the apex.
+    R : radius of the cross-section at unit distance from the apex (> 0).
 
     Returns
     -------
@@ -501,7 +501,7 @@ def coneZ(x: torch.Tensor, center: Center = (0.0, 0.0, 0.0), R: float = 1.0) -> 
     ----------
     x : (..., 3) points.
     center : (3,) apex.
-    R : radius of the cross-section at unit distance from the apex.
+    R : radius of the cross-section at unit distance from the apex (> 0).
 
     Returns
     -------
@@ -623,7 +623,7 @@ def superEll(
     ----------
     x : (..., 3) points.
     center : (3,) center.
-    a, b, c : semi-axes along x, y, z.
+    a, b, c : semi-axes along x, y, z (> 0).
     s1 : "north-south" exponent (z profile), > 0.
     s2 : "east-west" exponent (xy cross-section), > 0.
 
@@ -672,7 +672,7 @@ def superQuadric(
     ----------
     x : (..., 3) points.
     e : (2,) exponents (e1 north-south, e2 east-west), > 0.
-    a : (3,) semi-axes.
+    a : (3,) semi-axes (> 0).
     r : (3,) rotation angles in radians about x, y, z.
     t : (3,) translation (the center of the solid).
 

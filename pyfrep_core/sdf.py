@@ -151,11 +151,6 @@ def _distinct_points(a: Any, b: Any, fn: str) -> None:
         raise ValueError(f"{fn}: a and b must be distinct points, got {shown(a)!r} and {shown(b)!r}")
 
 
-def _check_nonnegative(value: Any, name: str) -> None:
-    if isinstance(value, int | float) and not value >= 0:
-        raise ValueError(f"{name} must be >= 0, got {value!r}")
-
-
 # ----------------------------------------------------------------------------- primitives
 
 

@@ -341,18 +341,93 @@ def read_obj(path: str) -> dict[str, Any]:
     return _plain(meshio.obj.read(io.StringIO(text)))  # meshio takes a text buffer as a file
 
 
+_VTK_FIELD_ARRAY = re.compile(r"\S+\s+(\d+)\s+(\d+)\s+[A-Za-z_]\w*")
+_VTK_CELLS = ("POLYGONS", "LINES", "VERTICES", "TRIANGLE_STRIPS", "CELLS")
+
+
+def _vtk_ascii_cut(text: str) -> str | None:
+    """Why an ASCII legacy VTK file ends inside a section (it was cut short), or None.
+
+    Sections announce their sizes (``POINTS n``: 3n numbers, ``SCALARS`` after ``POINT_DATA n``:
+    n per component ...); a file cut short lacks numbers at the end of its last section.  VTK's
+    own reader fills what is missing without a word, so this is checked before it runs.
+
+    >>> _vtk_ascii_cut("DATASET POLYDATA\\nPOINTS 2 float\\n0 0 0\\n1 0\\n")
+    'the file ends inside its POINTS section: 5 of its 6 numbers are there'
+    """
+    lines = text.splitlines()
+    n = ncomp = 0
+    cells = (0, 0)
+    last: tuple[int, str, int] | None = None  # (line, section, numbers it announces)
+    for i, line in enumerate(lines):
+        words = line.split()
+        if not words or not words[0][0].isalpha() or words[0].lower() in ("nan", "inf", "infinity"):
+            continue
+        key = words[0].upper()
+        try:
+            if key == "POINTS":
+                expected = 3 * int(words[1])
+            elif key in _VTK_CELLS:
+                cells = (int(words[1]), int(words[2]))
+                expected = cells[1]
+            elif key in ("OFFSETS", "CONNECTIVITY", "CELL_TYPES"):  # VTK 5.1 cells; 4.2 unstructured grids
+                expected = cells[0] if key == "OFFSETS" else cells[1] if key == "CONNECTIVITY" else int(words[1])
+            elif key in ("POINT_DATA", "CELL_DATA"):
+                n, expected = int(words[1]), 0
+            elif key == "SCALARS":
+                ncomp = int(words[3]) if len(words) > 3 else 1
+                expected = n * ncomp
+            elif key == "LOOKUP_TABLE":
+                expected = 4 * int(words[2]) if len(words) > 2 else n * ncomp
+            elif key in ("VECTORS", "NORMALS"):
+                expected = 3 * n
+            elif key in ("TEXTURE_COORDINATES", "COLOR_SCALARS"):
+                expected = int(words[2]) * n
+            elif key in ("TENSORS", "TENSORS6"):
+                expected = (6 if key == "TENSORS6" else 9) * n
+            elif key == "FIELD":
+                expected = 0
+            elif _VTK_FIELD_ARRAY.fullmatch(line.strip()):
+                expected = int(words[1]) * int(words[2])
+            else:  # DATASET, METADATA and its lines
+                continue
+        except (IndexError, ValueError):
+            return f"malformed section line {line.strip()[:60]!r}"
+        last = (i, key, expected)
+    if last is None:
+        return None
+    i, key, expected = last
+    found = sum(len(line.split()) for line in lines[i + 1 :])
+    if found < expected:
+        return f"the file ends inside its {key} section: {found} of its {expected} numbers are there"
+    return None
+
+
 def read_vtk(path: str) -> dict[str, Any]:
     with open(path, "rb") as f:
-        info = _vtk_header(f.read(HEADER_BYTES))
+        data = f.read()
+    info = _vtk_header(data[:HEADER_BYTES])
+    if not info["binary"]:
+        problem = _vtk_ascii_cut(data.decode("ascii", errors="replace"))
+        if problem is not None:
+            raise ReadError(problem)
     if info["dataset"] != "POLYDATA":
         import meshio
 
         return _plain(meshio.vtk.read(path))
+    import warnings
+
     import pyvista as pv
 
-    poly = pv.read(path)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a VTK warning (below) is a failed read too
+        with pv.VtkErrorCatcher(raise_errors=True, emit_warnings=True, send_to_logging=False):
+            poly = pv.read(path)
     if not isinstance(poly, pv.PolyData) or poly.n_points == 0:
         raise ReadError("VTK's reader found no points in the POLYDATA")
+    n = info.get("points", (poly.n_points,))[0]
+    if poly.n_points != n:
+        raise ReadError(f"POINTS announces {n} points, VTK's reader found {poly.n_points}")
     tri = poly.triangulate()
     faces = np.asarray(tri.faces, dtype=np.int64).reshape(-1, 4)
     if faces.size and not (faces[:, 0] == 3).all():
@@ -365,6 +440,21 @@ def read_vtk(path: str) -> dict[str, Any]:
     }
 
 
+def read_ply(path: str) -> dict[str, Any]:
+    """meshio's PLY reader, its result checked against the header's counts (it reads a cut face list short)."""
+    import meshio
+
+    with open(path, "rb") as f:
+        _, elements, _ = _ply_header(f.read(HEADER_BYTES))
+    out = _plain(meshio.ply.read(path))
+    counts = {name: count for name, count, _ in elements}
+    found = {"vertex": len(out["points"]), "face": sum(len(data) for _, data in out["cells"])}
+    for name in ("vertex", "face"):
+        if counts.get(name, 0) != found[name]:
+            raise ReadError(f"the header announces {counts.get(name, 0)} {name} elements, the file holds {found[name]}")
+    return out
+
+
 def _read_with(module: str) -> Any:
     def read(path: str) -> dict[str, Any]:
         import meshio
@@ -374,7 +464,7 @@ def _read_with(module: str) -> Any:
     return read
 
 
-READERS = {"off": read_off, "obj": read_obj, "vtk": read_vtk, "ply": _read_with("ply"), "stl": _read_with("stl")}
+READERS = {"off": read_off, "obj": read_obj, "vtk": read_vtk, "ply": read_ply, "stl": _read_with("stl")}
 
 
 def _plain(raw: Any) -> dict[str, Any]:

@@ -408,7 +408,10 @@ def _to_mesh(raw: dict[str, Any], fmt: str) -> Mesh:
         kinds = ", ".join(sorted({kind for kind, _ in raw["cells"]})) or "none"
         raise ValueError(f"no triangles in the file (cells: {kinds})")
     faces = np.concatenate(blocks).astype(np.int64)
-    points = np.asarray(raw["points"], dtype=np.float64)
+    if len(faces) == 0:
+        raise ValueError("no triangles in the file (its face lists are empty)")
+    with np.errstate(invalid="ignore", over="ignore"):  # NaN and inf are refused by Mesh, by name
+        points = np.asarray(raw["points"], dtype=np.float64)
     if points.ndim != 2 or points.shape[1] not in (2, 3):
         raise ValueError(f"points must have 3 coordinates, got shape {points.shape}")
     if points.shape[1] == 2:

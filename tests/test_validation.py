@@ -421,6 +421,9 @@ def test_torch_compile_of_a_model_has_no_graph_break_from_the_checks():
             partial = pyfrep_core.union(partial, s)
     bound = 39 * 4 * torch.finfo(torch.float64).eps * largest
     assert (fn(x) - eager).abs().le(bound).all()
+    # the Model object itself (its __call__ with the checks) compiles whole too, a parameter as a tensor
+    whole = torch.compile(twenty, fullgraph=True, dynamic=False)
+    assert (whole(x, r=torch.tensor(0.5, dtype=torch.float64)) - eager).abs().le(bound).all()
     # a compiled function does not read its input: a NaN point gives NaN, never a wrong finite value
     assert torch.isnan(fn(torch.full((64, 3), math.nan, dtype=torch.float64))).all()
 

@@ -151,7 +151,10 @@ class _Worker:
         if not self.started:
             answer = self._receive(START_SECONDS)
             if answer is None or answer[0] != "ready":
-                raise OSError(f"the reader process ({sys.executable} {_WORKER_SCRIPT}) did not start: {answer}")
+                how = "in time" if answer is None else f"(exit status {answer[1]})"
+                raise OSError(
+                    f"the reader process did not start {how}; `{sys.executable} -P {_WORKER_SCRIPT}` shows why"
+                )
             self.started = True
         try:
             pickle.dump((fmt, path), self.proc.stdin)

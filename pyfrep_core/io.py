@@ -6,8 +6,8 @@ residuals ...) survives PLY and VTK.  Point clouds: XYZ (plain text, ``x y z`` o
 ``x y z nx ny nz`` per line) and PLY.
 
 Reading is guarded, since a reader is a parser of whatever bytes it is given: the file's
-header is checked first (counts against the file's size: ``OFF\n`` is refused in
-microseconds where meshio's reader loops forever), then the reader runs in a worker process
+header is checked first (counts against the file's size: ``OFF\\n`` is refused in
+milliseconds where meshio's reader loops forever), then the reader runs in a worker process
 (``_io_worker.py``, kept for the next call) that is stopped after :data:`PARSE_SECONDS` plus
 one second per :data:`PARSE_BYTES_PER_SECOND` bytes.  Whatever goes wrong (a malformed,
 truncated or empty file, a reader that loops or crashes) comes back as a ValueError that
@@ -85,12 +85,12 @@ class PointCloud(NamedTuple):
     normals: np.ndarray | None
 
 
-def _format(path: str | os.PathLike, formats: dict[str, str], what: str) -> tuple[Path, str]:
+def _format(path: str | os.PathLike, formats: dict[str, str], fn: str) -> tuple[Path, str]:
     path = Path(path)
     ext = path.suffix.lower()
     if ext not in formats:
         supported = ", ".join(formats)
-        raise ValueError(f"cannot tell the {what} format of {str(path)!r} from its extension; supported: {supported}")
+        raise ValueError(f"{fn}: cannot tell the format of {str(path)!r} from its extension; supported: {supported}")
     return path, formats[ext]
 
 
@@ -211,7 +211,11 @@ def _parse(fmt: str, path: Path, size: int, fn: str) -> dict[str, Any]:
                 worker = _Worker()
             except OSError as err:
                 raise OSError(f"{fn}: cannot start a reader process ({sys.executable}): {err}") from None
-        answer = worker.ask(fmt, str(path), seconds)
+        try:
+            answer = worker.ask(fmt, str(path), seconds)
+        except OSError as err:  # it did not start
+            worker.stop()
+            raise OSError(f"{fn}: {err}") from None
         if answer[0] in ("ok", "error"):
             with _idle_lock:
                 if len(_idle_workers) < _KEEP_WORKERS:
@@ -335,7 +339,7 @@ def save_mesh(mesh: Mesh, path: str | os.PathLike) -> None:
 
     if not isinstance(mesh, Mesh):
         raise TypeError(f"save_mesh: mesh must be a pyfrep_core Mesh, got {type(mesh).__name__}")
-    path, fmt = _format(path, MESH_FORMATS, "mesh")
+    path, fmt = _format(path, MESH_FORMATS, "save_mesh")
     if mesh.is_empty():
         raise ValueError(f"save_mesh: cannot save an empty mesh (no faces) to {str(path)!r}")
     point_data: dict[str, np.ndarray] = {}
@@ -387,7 +391,7 @@ def load_mesh(path: str | os.PathLike) -> Mesh:
     Traceback (most recent call last):
     ValueError: load_mesh: cannot read '...square.off' as OFF: no count line (vertices faces edges) after `OFF`...
     """
-    path, fmt = _format(path, MESH_FORMATS, "mesh")
+    path, fmt = _format(path, MESH_FORMATS, "load_mesh")
     size = _check_read(path, fmt, "load_mesh")
     raw = _parse(fmt, path, size, "load_mesh")
     try:
@@ -486,7 +490,7 @@ def save_points(points: Any, path: str | os.PathLike, normals: Any = None) -> No
         points, path = path, points
     if not isinstance(path, str | os.PathLike):
         raise TypeError(f"save_points: path must be a str or os.PathLike, got {type(path).__name__}")
-    path, fmt = _format(path, POINT_FORMATS, "point cloud")
+    path, fmt = _format(path, POINT_FORMATS, "save_points")
     pts = _points_array(points, "points", "save_points")
     nrm = None if normals is None else _points_array(normals, "normals", "save_points", len(pts))
     if fmt == "xyz":
@@ -511,7 +515,7 @@ def load_points(path: str | os.PathLike) -> PointCloud:
     ValueError naming the path and the problem (unknown extension, empty or malformed
     file, a wrong number of columns, NaN); FileNotFoundError when it is missing.
     """
-    path, fmt = _format(path, POINT_FORMATS, "point cloud")
+    path, fmt = _format(path, POINT_FORMATS, "load_points")
     size = _check_read(path, fmt, "load_points")
     if fmt == "xyz":  # numpy's C parser: it cannot loop, so it runs here
         try:

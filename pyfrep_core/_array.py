@@ -131,6 +131,42 @@ def named_error(err: ValueError, fn: str) -> ValueError:
     return err
 
 
+_ENTRY: contextvars.ContextVar[str | None] = contextvars.ContextVar("pyfrep_entry", default=None)
+
+
+def named_entry(fn: Callable) -> Callable:
+    """Decorator for a public analysis entry (grad, curvatures, ...): its errors name it.
+
+    A ValueError or TypeError raised inside (a bad point found by the shared checks, a
+    degenerate parameter of a primitive inside f) gets the entry's name as prefix
+    (:func:`named_error`); only the outermost entry adds its name (``grad`` calls
+    ``value_and_grad``: the message says ``grad: ...``).
+
+    >>> @named_entry
+    ... def grad_like(x):
+    ...     check_finite(as_tensor(x)[0])
+    >>> grad_like([[0.0, float("nan"), 0.0]])
+    Traceback (most recent call last):
+    ...
+    ValueError: grad_like: x contains a non-finite value (nan) at index (0, 1)
+    """
+    label = fn.__name__
+
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        if _ENTRY.get() is not None:
+            return fn(*args, **kwargs)
+        token = _ENTRY.set(label)
+        try:
+            return fn(*args, **kwargs)
+        except (ValueError, TypeError) as err:
+            raise named_error(err, label)  # noqa: B904  (the same exception, its message prefixed)
+        finally:
+            _ENTRY.reset(token)
+
+    return wrapper
+
+
 # the arguments of a catalogue function that hold points or field values (checked for dtype):
 # the first one (x, f, d, f1, d1) and the further operands of an operation (f2, f3, d2)
 _OPERAND = re.compile(r"[fd][2-9]")
@@ -211,7 +247,13 @@ def frep(fn: Callable) -> Callable:
 
     @functools.wraps(fn)
     def wrapper(*args, **kwargs):
-        if skip_checks():
+        if tracing():
+            return convert_and_call(args, kwargs)
+        if _VALIDATED.get():
+            # inside a checked call: its points were read; numbers (parameters) cost nothing to check
+            for name, value in (*zip(names, args, strict=False), *kwargs.items()):
+                if not isinstance(value, torch.Tensor | np.ndarray):
+                    _check_argument(value, name, label)
             return convert_and_call(args, kwargs)
         given = {**dict(zip(names, args, strict=False)), **kwargs}
         dtype = None

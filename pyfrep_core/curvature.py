@@ -52,6 +52,7 @@ from typing import Any, NamedTuple
 import numpy as np
 import torch
 
+from ._array import named_entry
 from .diff import _map_chunks, _out, _points, _tangent_hessian, tangent_frame
 
 __all__ = [
@@ -134,6 +135,7 @@ def _curvatures(f: Callable, x: Any, create_graph: bool, chunk: int | None) -> t
     return out, was_numpy, batch
 
 
+@named_entry
 def curvatures(f: Callable, x: Any, create_graph: bool = False, chunk: int | None = None) -> Curvatures:
     """Mean, Gaussian and principal curvatures and principal directions of the level sets of f at x.
 
@@ -169,6 +171,7 @@ def curvatures(f: Callable, x: Any, create_graph: bool = False, chunk: int | Non
     return _out(out, was_numpy, batch)
 
 
+@named_entry
 def mean_curvature(f: Callable, x: Any, create_graph: bool = False, chunk: int | None = None) -> Any:
     """Mean curvature H = -1/2 div(grad f / |grad f|) (paper eq. for H), shape (N,).
 
@@ -196,6 +199,7 @@ def mean_curvature(f: Callable, x: Any, create_graph: bool = False, chunk: int |
     return _out(h, was_numpy, batch)
 
 
+@named_entry
 def gaussian_curvature(f: Callable, x: Any, create_graph: bool = False, chunk: int | None = None) -> Any:
     """Gaussian curvature K = grad f adj(Hf) grad f^T / |grad f|^4 (paper eq. for K), shape (N,).
 
@@ -212,6 +216,7 @@ def gaussian_curvature(f: Callable, x: Any, create_graph: bool = False, chunk: i
     return _out(out.K, was_numpy, batch)
 
 
+@named_entry
 def principal_curvatures(f: Callable, x: Any, create_graph: bool = False, chunk: int | None = None) -> tuple:
     """Principal curvatures (kmin, kmax), each (N,): ``H -+ sqrt(max(H^2 - K, 0))``.
 
@@ -228,6 +233,7 @@ def principal_curvatures(f: Callable, x: Any, create_graph: bool = False, chunk:
     return _out((out.kmin, out.kmax), was_numpy, batch)
 
 
+@named_entry
 def principal_directions(f: Callable, x: Any, create_graph: bool = False, chunk: int | None = None) -> tuple:
     """Unit principal directions (dmin, dmax), each (N, 3), tangent to the level set.
 
@@ -248,6 +254,7 @@ def principal_directions(f: Callable, x: Any, create_graph: bool = False, chunk:
     return _out((out.dmin, out.dmax), was_numpy, batch)
 
 
+@named_entry
 def curvatures_from_hessian(g: Any, hess: Any, x: Any = None) -> Curvatures:
     """The paper's formulas applied to a gradient (N, 3) and a full Hessian (N, 3, 3).
 
@@ -314,6 +321,7 @@ CURVATURE_FIELDS = {
 }
 
 
+@named_entry
 def attach_curvatures(mesh: Any, f: Callable, chunk: int | None = None) -> Any:
     """Curvatures of f at a mesh's vertices, stored in ``mesh.point_data`` (returns the mesh).
 

@@ -37,7 +37,7 @@ from typing import Any, NamedTuple
 
 import torch
 
-from ._array import as_tensor, check_finite, check_points, validated_inputs
+from ._array import as_tensor, check_finite, check_points, named_entry, validated_inputs
 from .compiled import first_order
 
 __all__ = [
@@ -194,6 +194,7 @@ def _value_and_grad(f: Callable, x: torch.Tensor, create_graph: bool = False) ->
     return _derivatives(f, x, 1, create_graph)
 
 
+@named_entry
 def value_and_grad(f: Callable, x: Any, create_graph: bool = False, chunk: int | None = None) -> tuple[Any, Any]:
     """f(x) and its spatial gradient (one backward pass), evaluated in chunks.
 
@@ -224,6 +225,7 @@ def value_and_grad(f: Callable, x: Any, create_graph: bool = False, chunk: int |
     return _out((y, g), was_numpy, batch)
 
 
+@named_entry
 def grad(f: Callable, x: Any, create_graph: bool = False, chunk: int | None = None) -> Any:
     """Spatial gradient grad f(x), shape (N, d) (paper Fig. 5).
 
@@ -246,6 +248,7 @@ def _vgh(f: Callable, t: torch.Tensor, create_graph: bool, chunk: int | None) ->
     return _map_chunks(lambda c: _derivatives(f, c, 2, False), t, chunk)
 
 
+@named_entry
 def value_grad_hessian(f: Callable, x: Any, create_graph: bool = False, chunk: int | None = None) -> tuple:
     """f, grad f (N, d) and the Hessian (N, d, d) from one evaluation of f: 1 + d backward passes.
 
@@ -263,6 +266,7 @@ def value_grad_hessian(f: Callable, x: Any, create_graph: bool = False, chunk: i
     return _out(tuple(_vgh(f, t, create_graph, chunk)), was_numpy, batch)
 
 
+@named_entry
 def hessian(f: Callable, x: Any, create_graph: bool = False, chunk: int | None = None) -> Any:
     """The Hessian of f at each point, (N, d, d): row i is grad (df/dx_i), one backward pass per row.
 
@@ -276,6 +280,7 @@ def hessian(f: Callable, x: Any, create_graph: bool = False, chunk: int | None =
     return value_grad_hessian(f, x, create_graph=create_graph, chunk=chunk)[2]
 
 
+@named_entry
 def laplacian(f: Callable, x: Any, create_graph: bool = False, chunk: int | None = None) -> Any:
     """Laplacian ``div grad f`` (N,), the trace of the Hessian (paper section 4).
 
@@ -291,6 +296,7 @@ def laplacian(f: Callable, x: Any, create_graph: bool = False, chunk: int | None
     return _out(h.diagonal(dim1=-2, dim2=-1).sum(-1), was_numpy, batch)
 
 
+@named_entry
 def p_laplacian(f: Callable, x: Any, p: float, create_graph: bool = False, chunk: int | None = None) -> Any:
     """p-Laplacian ``div(|grad f|^(p-2) grad f)`` (N,), in closed form from grad f and the Hessian.
 
@@ -368,6 +374,7 @@ def _tangent_hessian(f: Callable, x: torch.Tensor, create_graph: bool) -> tuple[
     return out if create_graph else tuple(t.detach() for t in out)
 
 
+@named_entry
 def tangent_hessian(f: Callable, x: Any, create_graph: bool = False, chunk: int | None = None) -> tuple:
     """The Hessian of f restricted to the tangent space of its level set, for curvatures.
 
@@ -415,6 +422,7 @@ def _div(v: Callable, x: torch.Tensor, create_graph: bool) -> tuple[torch.Tensor
     return (total if create_graph else total.detach(),)
 
 
+@named_entry
 def div(v: Callable, x: Any, create_graph: bool = False, chunk: int | None = None) -> Any:
     """Divergence of a vector field ``v`` (N, d) -> (N, d) at x (paper Fig. 6): one pass per component.
 
@@ -435,6 +443,7 @@ def div(v: Callable, x: Any, create_graph: bool = False, chunk: int | None = Non
 # ----------------------------------------------------------------------------- shape parameters
 
 
+@named_entry
 def param_grad(
     model: Any, x: Any, params: Mapping[str, Any] | None = None, create_graph: bool = False, chunk: int | None = None
 ) -> dict[str, Any]:
@@ -520,6 +529,7 @@ class Projection(NamedTuple):
     value: Any  # (N,) f at the returned points
 
 
+@named_entry
 def project_to_surface(
     f: Callable,
     points: Any,

@@ -25,7 +25,16 @@ from typing import Any
 import numpy as np
 import torch
 
-from ._array import as_tensor, check_finite, check_param, check_points, named_error, skip_checks, validated_inputs
+from ._array import (
+    as_tensor,
+    check_finite,
+    check_param,
+    check_points,
+    named_error,
+    skip_checks,
+    tracing,
+    validated_inputs,
+)
 
 Bounds = tuple[tuple[float, ...], tuple[float, ...]]
 
@@ -180,9 +189,11 @@ class Model:
         t, was_numpy = as_tensor(x, "x", fn=label)
         check_points(t, self.dim, "x", fn=label, empty=True)
         values = self._resolve(overrides)
-        check = not skip_checks(t, *values.values())
+        traced = tracing(t, *values.values())
+        check = not traced and not skip_checks()  # points: once, by the outermost checked call
         if check:
             check_finite(t, "x", label)
+        if not traced:  # parameters: always (an outer call checked its points, not these values)
             for name, v in values.items():
                 check_param(v, name, label)
         batch = None

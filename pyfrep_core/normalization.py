@@ -39,7 +39,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from ._array import check_memory
+from ._array import check_memory, named_entry
 from .diff import _chunk_size, _evaluate, _leaf, _map_chunks, _out, _points, _vjp
 
 __all__ = ["omega_1", "omega_k", "delta_1", "normal_derivative", "normalized", "Normalized"]
@@ -122,6 +122,7 @@ def _apply(kernel: Callable, x: Any, create_graph: bool, chunk: int | None) -> A
     return _out(value, was_numpy, batch)
 
 
+@named_entry
 def omega_1(f: Callable, x: Any, create_graph: bool = False, chunk: int | None = None) -> Any:
     """Rvachev's normalization ``f / sqrt(f^2 + |grad f|^2)`` (paper eq. omega1), shape (N,).
 
@@ -146,6 +147,7 @@ def omega_1(f: Callable, x: Any, create_graph: bool = False, chunk: int | None =
     return _apply(kernel, x, create_graph, chunk)
 
 
+@named_entry
 def omega_k(f: Callable, x: Any, k: int = 2, create_graph: bool = False, chunk: int | None = None) -> Any:
     """Rvachev's normalization to order k by the paper's recursion, shape (N,).
 
@@ -168,6 +170,7 @@ def omega_k(f: Callable, x: Any, k: int = 2, create_graph: bool = False, chunk: 
     return _apply(lambda xr: _omegas(*_field(f, xr), xr, k), x, create_graph, chunk)
 
 
+@named_entry
 def delta_1(f: Callable, x: Any, create_graph: bool = False, chunk: int | None = None) -> Any:
     """Taubin's normalization ``f / |grad f|`` (paper eq. delta1), shape (N,); NaN where grad f = 0.
 
@@ -187,6 +190,7 @@ def delta_1(f: Callable, x: Any, create_graph: bool = False, chunk: int | None =
     return _apply(kernel, x, create_graph, chunk)
 
 
+@named_entry
 def normal_derivative(
     f: Callable,
     x: Any,

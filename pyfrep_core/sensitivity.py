@@ -23,7 +23,7 @@ from typing import Any
 import torch
 import torch.autograd.forward_ad as fwad
 
-from ._array import as_tensor, check_finite, check_option, check_points
+from ._array import as_tensor, check_finite, check_option, check_points, named_entry
 from .compiled import first_order
 from .diff import CHUNK, value_and_grad
 from .model import Model
@@ -31,6 +31,7 @@ from .model import Model
 __all__ = ["normal_velocity", "param_derivative"]
 
 
+@named_entry
 def param_derivative(model: Model, x: Any, name: str, params: dict[str, Any] | None = None, chunk: int = CHUNK) -> Any:
     """df/dp at each point: the derivative of ``model(x, **params)`` w.r.t. parameter ``name``.
 
@@ -66,6 +67,7 @@ def param_derivative(model: Model, x: Any, name: str, params: dict[str, Any] | N
     return out.cpu().numpy() if was_numpy else out
 
 
+@named_entry
 def normal_velocity(model: Model, x: Any, name: str, params: dict[str, Any] | None = None, chunk: int = CHUNK) -> Any:
     """Speed ``v = -(df/dp) / |grad f|`` of the surface through ``x`` when parameter ``name`` grows.
 

@@ -57,6 +57,11 @@ ARGS = {
 }
 
 
+CATALOGUE_MODULES = {
+    f"pyfrep_core.{m}" for m in ("primitives", "operations", "transforms", "sdf", "periodic", "lattices", "convolution")
+}
+
+
 def _catalogue():
     """name -> function for every checked catalogue entry: pyfrep_core.__all__ and pyfrep_core.sdf.__all__."""
     out = {}
@@ -64,7 +69,7 @@ def _catalogue():
         for name in module.__all__:
             fn = getattr(module, name)
             # the catalogue is what frep wraps: a function of points (x) or of field values (f, d, f1, d1)
-            if inspect.isfunction(fn) and hasattr(fn, "__wrapped__"):
+            if inspect.isfunction(fn) and hasattr(fn, "__wrapped__") and fn.__module__ in CATALOGUE_MODULES:
                 out[prefix + name] = fn
     return out
 
@@ -174,6 +179,11 @@ def test_nan_parameters_of_the_catalogue_are_refused_naming_them():
         sphere(x, r=1j)
     with pytest.raises(ValueError, match=r"^union: f2 must be finite, got nan"):
         pyfrep_core.union(x[:, 0], math.nan)
+    # inside a checked call (a model, grad) the points are not read again, but numbers still are
+    with validated_inputs(), pytest.raises(ValueError, match=r"^sphere: center must be finite, got \(nan, 0, 0\)"):
+        sphere(x, center=(math.nan, 0, 0))
+    with pytest.raises(ValueError, match=r"^grad: translate: offset must be finite, got \(0, inf, 0\)"):
+        pyfrep_core.grad(lambda p: sphere(pyfrep_core.translate(p, (0, math.inf, 0))), x)
 
 
 def test_wrong_point_shapes_and_types_name_the_function():
@@ -440,3 +450,82 @@ def test_batched_parameters_inside_a_centre_tuple_are_checked_and_evaluated():
     np.testing.assert_allclose(out, [[1.0, 0.0], [0.75, 0.75]], rtol=0, atol=1e-15)
     with pytest.raises(ValueError, match=r"^shifted_egg: cx must be finite, got \[0\.0, nan\]"):
         shifted_egg(x, cx=torch.tensor([0.0, math.nan]))
+
+
+# ----------------------------------------------------------------------------- analysis entries
+
+from pyfrep_core import curvature, diff, normalization, sensitivity  # noqa: E402
+from pyfrep_core.models import fig1_part  # noqa: E402
+
+# every public entry that differentiates or analyses f at user points: name -> call on points
+ANALYSES = {
+    "value_and_grad": lambda p: diff.value_and_grad(fig1_part, p),
+    "grad": lambda p: diff.grad(fig1_part, p),
+    "value_grad_hessian": lambda p: diff.value_grad_hessian(fig1_part, p),
+    "hessian": lambda p: diff.hessian(fig1_part, p),
+    "laplacian": lambda p: diff.laplacian(fig1_part, p),
+    "p_laplacian": lambda p: diff.p_laplacian(fig1_part, p, 3.0),
+    "tangent_hessian": lambda p: diff.tangent_hessian(fig1_part, p),
+    "div": lambda p: diff.div(lambda q: q * q, p),
+    "param_grad": lambda p: diff.param_grad(fig1_part, p),
+    "project_to_surface": lambda p: diff.project_to_surface(fig1_part, p).points,
+    "curvatures": lambda p: curvature.curvatures(fig1_part, p),
+    "mean_curvature": lambda p: curvature.mean_curvature(fig1_part, p),
+    "gaussian_curvature": lambda p: curvature.gaussian_curvature(fig1_part, p),
+    "principal_curvatures": lambda p: curvature.principal_curvatures(fig1_part, p),
+    "principal_directions": lambda p: curvature.principal_directions(fig1_part, p),
+    "omega_1": lambda p: normalization.omega_1(fig1_part, p),
+    "omega_k": lambda p: normalization.omega_k(fig1_part, p, k=2),
+    "delta_1": lambda p: normalization.delta_1(fig1_part, p),
+    "normal_derivative": lambda p: normalization.normal_derivative(fig1_part, p),
+    "param_derivative": lambda p: sensitivity.param_derivative(fig1_part, p, "r"),
+    "normal_velocity": lambda p: sensitivity.normal_velocity(fig1_part, p, "r"),
+}
+ARGUMENT = {"project_to_surface": "points"}
+
+
+def _arrays(out):
+    """The floating arrays of a result (a tensor or array, a tuple/NamedTuple or dict of them)."""
+    if isinstance(out, dict):
+        return [a for v in out.values() for a in _arrays(v)]
+    if isinstance(out, tuple | list):
+        return [a for v in out for a in _arrays(v)]
+    kind = out.dtype.kind if isinstance(out, np.ndarray) else ("f" if out.is_floating_point() else "b")
+    return [out] if kind == "f" else []
+
+
+@pytest.mark.parametrize("name", sorted(ANALYSES))
+def test_analysis_entries_refuse_bad_points_naming_themselves(name):
+    call, arg = ANALYSES[name], ARGUMENT.get(name, "x")
+    with pytest.raises(ValueError, match=rf"^{name}: {arg} contains a non-finite value \(nan\) at index \(1, 1\)"):
+        call(torch.tensor([[0.1, 0.2, 0.3], [0.1, math.nan, 0.3]]))
+    with pytest.raises(ValueError, match=rf"^{name}: {arg} contains a non-finite value \(inf\) at index \(0, 2\)"):
+        call(np.array([[0.1, 0.2, math.inf]]))
+    with pytest.raises(TypeError, match=rf"^{name}: {arg} must be real .*got complex128"):
+        call(np.zeros((2, 3), np.complex128))
+    with pytest.raises(TypeError, match=rf"^{name}: {arg} must be float32 or float64, got int64"):
+        call(np.zeros((2, 3), np.int64))
+    # documented choice: an analysis needs points to work on (pyfrep_core._array)
+    with pytest.raises(ValueError, match=rf"^{name}: {arg} is empty \(shape \(0, 3\)\)"):
+        call(np.zeros((0, 3)))
+
+
+@pytest.mark.parametrize("name", sorted(ANALYSES))
+def test_analysis_entries_give_back_the_points_dtype(name):
+    x32 = np.array([[0.3, -0.2, 0.45], [0.7, 0.1, -0.2], [0.1, 0.6, 0.2]], np.float32)
+    out_np, out_t = ANALYSES[name](x32), ANALYSES[name](torch.from_numpy(x32))
+    arrays_np, arrays_t = _arrays(out_np), _arrays(out_t)
+    assert arrays_np and len(arrays_np) == len(arrays_t)
+    for a, t in zip(arrays_np, arrays_t, strict=True):
+        assert isinstance(a, np.ndarray) and a.dtype == np.float32
+        assert isinstance(t, torch.Tensor) and t.dtype == torch.float32
+        np.testing.assert_array_equal(a, t.numpy())  # numpy in is the same torch computation
+    for a in _arrays(ANALYSES[name](x32.astype(np.float64))):
+        assert a.dtype == np.float64
+
+
+def test_an_error_inside_f_names_the_outermost_entry_and_the_primitive():
+    with pytest.raises(ValueError, match=r"^grad: sphere: r must be positive, got -1\.0$"):
+        diff.grad(lambda p: sphere(p, r=-1.0), np.zeros((2, 3)))
+    with pytest.raises(ValueError, match=r"^curvatures: fig1_part: r must be finite, got nan$"):
+        curvature.curvatures(lambda p: fig1_part(p, r=math.nan), np.zeros((2, 3)))

@@ -142,7 +142,8 @@ def test_values_and_gradients_are_finite_on_the_creases_of_the_operations(crease
         assert (f1(x).abs() <= floor).all() and (f2(x).abs() <= floor).all(), f"not 0 at {local}: {f1(x)}, {f2(x)}"
         # mutations tried: union with torch.sqrt instead of safe_sqrt, and the R_m form this library
         # had before (f1 + f2 +- rho) * (f1^2 + f2^2)^(m/2) (issue 10, defect 3) -> both falsified,
-        # minimal example union(_m) of two balls of radius 1/8 touching at (1/8, 0, 0): NaN gradient
+        # minimal example union(_m) of two balls of radius 1/8 touching at (1/8, 0, 0): NaN gradient;
+        # safe_sqrt's floor as a float64 constant (0 in float32) -> falsified in float32 only
         v, g = value_and_grad(tree, pts, dtype)
         assert np.isfinite(v).all(), f"{dtype}: value not finite at {pts}: {v}"
         assert np.isfinite(g).all(), f"{dtype}: gradient not finite at {pts}: {g}"

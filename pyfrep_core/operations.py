@@ -88,7 +88,9 @@ def _r_m(f1: torch.Tensor, f2: torch.Tensor, m: Scalar, sign: float, fn: str) ->
     # d s^(m/2)/ds = inf at s = 0 meets ds/df = 0 and the gradient is NaN at f1 = f2 = 0
     check_param(m, "m", fn, nonnegative=True)
     rho = safe_sqrt(f1 * f1 + f2 * f2)
-    return (f1 + f2 + sign * rho) * rho**m
+    # rho^m saturates at the dtype's largest value instead of overflowing: where operands near
+    # sqrt(max) make it overflow, an exactly cancelled first factor still gives 0 (not 0 * inf = NaN)
+    return (f1 + f2 + sign * rho) * (rho**m).clamp(max=torch.finfo(rho.dtype).max)
 
 
 @frep
@@ -306,8 +308,11 @@ def _bounded_displacement(
 ) -> torch.Tensor:
     # bounded blending (Pasko et al.): r1 = (f1/a1)^2 + (f2/a2)^2, r2 = (f3+/a3)^2, r = r1 / (r1 + r2),
     # displacement a0 (1 - r)^3 / (1 + r): a0 on the edge, 0 wherever the bounding solid f3 < 0
-    r1 = (f1 / a1) ** 2 + (f2 / a2) ** 2
-    r2 = (torch.clamp(f3, min=0.0) / a3) ** 2
+    # r1 and r2 saturate at half the dtype's largest value: their sum cannot overflow, so operands
+    # whose squares overflow give r = 1/2 at worst instead of inf / inf = NaN
+    big = torch.finfo(torch.result_type(f1, f2)).max / 2
+    r1 = ((f1 / a1) ** 2 + (f2 / a2) ** 2).clamp(max=big)
+    r2 = ((torch.clamp(f3, min=0.0) / a3) ** 2).clamp(max=big)
     total = r1 + r2
     has = total > 0
     r = torch.where(has, r1 / torch.where(has, total, torch.ones_like(total)), torch.zeros_like(total))

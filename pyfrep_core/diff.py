@@ -37,7 +37,7 @@ from typing import Any, NamedTuple
 
 import torch
 
-from ._array import as_tensor, check_finite, check_points, named_entry, validated_inputs
+from ._array import as_tensor, check_finite, check_option, check_points, named_entry, validated_inputs
 from .compiled import first_order
 
 __all__ = [
@@ -574,10 +574,11 @@ def project_to_surface(
     eps = torch.finfo(x0.dtype).eps
     if tol is None:
         tol = 100.0 * eps * max(1.0, float(x0.abs().max()))
-    if not tol > 0:
-        raise ValueError(f"tol must be positive, got {tol}")
-    if int(max_iter) != max_iter or max_iter < 0:
-        raise ValueError(f"max_iter must be a non-negative integer, got {max_iter!r}")
+    tol = check_option(tol, "tol", "project_to_surface", positive=True)
+    max_iter = check_option(max_iter, "max_iter", "project_to_surface", "int", minimum=0)
+    # a step or distance limit of 0 or less would leave every point where it is, reported unconverged
+    max_step = check_option(max_step, "max_step", "project_to_surface", positive=True, none=True)
+    max_distance = check_option(max_distance, "max_distance", "project_to_surface", positive=True, none=True)
     x = x0.clone()
     n = x.shape[0]
     value = torch.empty(n, dtype=x.dtype, device=x.device)

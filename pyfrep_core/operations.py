@@ -415,6 +415,7 @@ def offset(f: torch.Tensor, d: Scalar) -> torch.Tensor:
     >>> offset(torch.tensor([-0.25, 0.5]), 0.25)
     tensor([0.0000, 0.7500])
     """
+    check_param(d, "d", "offset")
     return f + d
 
 
@@ -437,4 +438,6 @@ def shell(f: torch.Tensor, thickness: Scalar) -> torch.Tensor:
     >>> shell(torch.tensor([0.0, 0.1, 1.0, -1.0]), 0.1)
     tensor([ 0.0586,  0.0000, -1.2213, -1.2213])
     """
+    # t <= 0 leaves no layer: the field is negative everywhere (an empty solid)
+    check_param(thickness, "thickness", "shell", positive=True)
     return intersection(f + thickness, thickness - f)

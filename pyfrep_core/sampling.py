@@ -47,13 +47,14 @@ def sample_mesh(mesh: Mesh, n: int, rng: np.random.Generator) -> np.ndarray:
     >>> bool((p[:, 0] + p[:, 1] <= 1).all() and (p[:, 2] == 0).all())
     True
     """
+    n = check_option(n, "n", "sample_mesh", "int", positive=True)
     if mesh.is_empty():
-        raise ValueError("cannot sample an empty mesh")
+        raise ValueError("sample_mesh: cannot sample an empty mesh")
     a, b, c = (mesh.vertices[mesh.faces[:, i]] for i in range(3))
     area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
     total = area.sum()
     if not total > 0:
-        raise ValueError("cannot sample a mesh of zero area")
+        raise ValueError("sample_mesh: cannot sample a mesh of zero area")
     face = rng.choice(len(area), size=n, p=area / total)
     r1 = np.sqrt(rng.random((n, 1)))
     r2 = rng.random((n, 1))

@@ -19,12 +19,13 @@ import numpy as np
 import pytest
 import torch
 
-from pyfrep_core import Param, fit, model, polygonize, sample_surface, sphere
+from pyfrep_core import Param, fit, model, offset, polygonize, project_to_surface, sample_surface, shell, sphere
 from pyfrep_core.distance import TrueDistance, distance_error, fmm_distance, surface_samples, true_distance
 from pyfrep_core.fitting import fit_error
-from pyfrep_core.mesh import evaluate_grid, grid_axes, grid_memory
+from pyfrep_core.mesh import Mesh, evaluate_grid, grid_axes, grid_memory
 from pyfrep_core.normalization import normalized
 from pyfrep_core.redistancing import RedistancedSDF, redistance
+from pyfrep_core.sampling import sample_mesh
 from pyfrep_core.sensitivity import normal_velocity, param_derivative
 
 BOUNDS = ((-1.5,) * 3, (1.5,) * 3)
@@ -48,6 +49,7 @@ def unit_points(n: int, radius: float = 1.0, seed: int = 0) -> np.ndarray:
 
 
 PTS = unit_points(50)
+TRIANGLE = Mesh(np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]]), np.array([[0, 1, 2]]))
 
 
 @pytest.fixture(scope="module")
@@ -188,6 +190,23 @@ BAD = [
     ("evaluate_grid", lambda: evaluate_grid(ball, BOX, 8, device="tpu:x"), "device", "tpu:x", ValueError),
     ("grid_memory", lambda: grid_memory(8, dtype=torch.int8), "dtype", torch.int8, ValueError),
     *[("grid_axes", lambda v=v: grid_axes(BOX, 8, dim=v), "dim", v, ValueError) for v in (0, 1.5)],
+    # Newton projection: a step or distance limit <= 0 left every point in place, reported unconverged
+    *[
+        ("project_to_surface", lambda v=v: project_to_surface(ball, PTS, max_step=v), "max_step", v, ValueError)
+        for v in (0.0, -0.1, NAN)
+    ],
+    *[
+        ("project_to_surface", lambda v=v: project_to_surface(ball, PTS, max_distance=v), "max_distance", v, ValueError)
+        for v in (0.0, -1.0, INF)
+    ],
+    *[
+        ("project_to_surface", lambda v=v: project_to_surface(ball, PTS, tol=v), "tol", v, ValueError)
+        for v in (0.0, NAN)
+    ],
+    *[
+        ("sample_mesh", lambda v=v: sample_mesh(TRIANGLE, v, np.random.default_rng(0)), "n", v, ValueError)
+        for v in (0, -5, 2.5)
+    ],
 ]
 
 
@@ -410,3 +429,23 @@ def test_thin_slab_estimate_within_a_factor_of_the_measured_peak():
     assert vertices == 1024 * 1024  # every z-line crossed once: the most such a slab holds
     assert measured / 2 <= estimate <= 2 * measured, (measured, estimate)
     assert grid_memory((4096, 4096, 2)) < 5 * 2**30
+
+
+def test_projection_with_limits_still_converges():
+    """Positive limits are kept: a point 0.1 outside the unit ball lands on it in steps of at most 0.06."""
+    p = project_to_surface(ball, 1.1 * PTS, max_step=0.06, max_distance=0.2)
+    assert p.converged.all()
+    np.testing.assert_allclose(np.linalg.norm(p.points, axis=1), 1.0, atol=1e-12)
+
+
+def test_shell_and_offset_refuse_degenerate_values():
+    """shell with t <= 0 is empty (negative everywhere); a non-finite offset moves the surface to infinity."""
+    f = torch.tensor([0.0, 0.5, -0.5], dtype=torch.float64)
+    for t in (0.0, -0.1):
+        with pytest.raises(ValueError, match=r"shell: thickness must be positive, got -?0\.\d"):
+            shell(f, t)
+    with pytest.raises(ValueError, match="offset: d must be finite"):
+        offset(f, INF)
+    # the nearest valid values: a thin shell is positive only inside |f| < t
+    assert (shell(f, 1e-3) > 0).tolist() == [True, False, False]
+    np.testing.assert_allclose(offset(f, -0.5).numpy(), [-0.5, 0.0, -1.0])

@@ -28,6 +28,8 @@ def test_readme_blocks_run_in_order(tmp_path, monkeypatch):
     for name, value in ns["truth"].items():
         assert ns["result"].params[name] == pytest.approx(value, rel=1e-3)
     assert ns["err"].mean < 2e-2
+    k = ns["k"]
+    assert k.defined.tolist() == [False, True] and np.isnan(k.H[0]) and k.H[1] == pytest.approx(2.0)
     # the compiled Fig. 1 part meshes to the eager program's mesh (block 0)
     assert ns["fast_mesh"].n_faces == 104_656 and ns["fast"].failure is None
     assert ns["fast_mesh"].volume() == pytest.approx(0.9868, abs=5e-5)

@@ -33,6 +33,7 @@ import functools
 import inspect
 import math
 import numbers
+import os
 import re
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any
@@ -417,8 +418,10 @@ def vec(v: Any, like: torch.Tensor, n: int = 3, name: str = "center") -> torch.T
     """A length-``n`` vector (tuple, list, array or tensor) as a tensor on ``like``'s device/dtype.
 
     Tensors with ``requires_grad`` keep their graph, so a center can be a shape parameter.
-    A batched vector of shape (B, n) is allowed; it broadcasts against points as (B, 1, n)
-    when the points are (N, n).
+    A batched vector of shape (B, n) is allowed for direct calls; it broadcasts against points
+    as (B, 1, n) when the points are (N, n).  The kernel never passes one: a Model's parameter
+    sets run through ``torch.func.vmap`` (:mod:`pyfrep_core.evaluate`), so its function sees 0-d
+    parameters.
     """
     # like is the point set: a wrong point shape gets a clear error here, before broadcasting
     if like.ndim == 0 or not n <= like.shape[-1] <= 3:
@@ -426,7 +429,7 @@ def vec(v: Any, like: torch.Tensor, n: int = 3, name: str = "center") -> torch.T
     if isinstance(v, torch.Tensor):
         t = v.to(device=like.device, dtype=like.dtype)
     elif isinstance(v, list | tuple) and any(isinstance(c, torch.Tensor) for c in v):
-        # batched components ((B, 1) from a Model) beside plain numbers: broadcast, then stack
+        # batched (B, 1) components beside plain numbers (a direct call; a Model's sets go through vmap)
         comps = [torch.as_tensor(c, dtype=like.dtype, device=like.device) for c in v]
         t = torch.stack(torch.broadcast_tensors(*comps), dim=-1)
     else:
@@ -499,7 +502,7 @@ def param_array(value: Any, name: str, fn: str) -> np.ndarray | None:
     if isinstance(value, list | tuple) and tracing(*value):
         return None
     if isinstance(value, list | tuple) and any(isinstance(v, torch.Tensor) for v in value):
-        try:  # batched components ((B, 1) from a Model) beside numbers, broadcast as vec() does
+        try:  # batched (B, 1) components beside numbers (a direct call), broadcast as vec() does
             comps = [torch.as_tensor(v).detach().cpu().double() for v in value]
             return torch.stack(torch.broadcast_tensors(*comps), dim=-1).numpy()
         except (TypeError, ValueError, RuntimeError):
@@ -560,6 +563,28 @@ def check_param(
         raise ValueError(f"{fn}: {name} must not be zero, got {shown(value)!r}")
 
 
+def available_memory() -> int | None:
+    """Bytes of memory available to a new allocation (``MemAvailable``), or None if unknown.
+
+    The kernel's one memory figure: grids (:func:`pyfrep_core.polygonize`), :func:`check_memory`
+    and the chunks of a model's calls (:mod:`pyfrep_core.evaluate`) are sized against it.
+
+    >>> available_memory() is None or available_memory() > 0
+    True
+    """
+    try:
+        with open("/proc/meminfo") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return int(os.sysconf("SC_AVPHYS_PAGES")) * int(os.sysconf("SC_PAGE_SIZE"))
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
 class MemoryBudgetError(ValueError, MemoryError):
     """A call that would need more memory than the machine has (a ValueError for bad input, and a MemoryError)."""
 
@@ -567,7 +592,7 @@ class MemoryBudgetError(ValueError, MemoryError):
 def check_memory(need: float, fn: str, what: str, advice: str) -> None:
     """Raise :class:`MemoryBudgetError` before allocating when ``need`` bytes exceed the available memory.
 
-    The budget is :func:`pyfrep_core.mesh.available_memory` (``MemAvailable``), the one
+    The budget is :func:`available_memory` (``MemAvailable``), the one
     :func:`pyfrep_core.polygonize` checks its grids against; unknown memory passes.
 
     >>> check_memory(1024, "spinodoid", "numwaves=10", "use fewer waves")
@@ -577,8 +602,6 @@ def check_memory(need: float, fn: str, what: str, advice: str) -> None:
     ...     print(str(err).split(",")[0])
     spinodoid: numwaves=1e28 needs about 9.31e+20 GiB
     """
-    from .mesh import available_memory  # the kernel's one memory budget (mesh imports this module's users)
-
     have = available_memory()
     if have is not None and need > have:
         raise MemoryBudgetError(

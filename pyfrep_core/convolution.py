@@ -16,7 +16,9 @@ value per element (or one number for all); angles of :func:`convArc` are in degr
 functions are vectorised over points *and* skeleton elements (broadcasting, evaluated in chunks
 of points to bound memory) and differentiable with respect to x, S, T and the skeleton.  As for
 the primitives, a (B, 1) tensor for ``S`` or ``T`` (and ``R`` of :func:`convLineR`) gives (B, N)
-values for B parameter sets, which is how ``@model`` passes a batch.
+values for B parameter sets when called directly (``@model`` runs parameter sets through
+``torch.func.vmap`` instead: these functions see 0-d parameters, and the value checks are
+skipped while tracing, as :func:`pyfrep_core._array.check_param` does).
 """
 
 from __future__ import annotations
@@ -28,7 +30,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from ._array import check_points, frep
+from ._array import check_points, frep, tracing
 
 __all__ = [
     "convPoint",
@@ -63,7 +65,7 @@ def _rows(v: Any, like: torch.Tensor, width: int, name: str) -> torch.Tensor:
     grouped = t.ndim == 1 or t.numel() == width or (t.ndim > 1 and t[0].numel() == width)
     if t.ndim == 0 or t.numel() == 0 or t.numel() % width != 0 or not grouped:
         raise ValueError(f"{name} must hold M groups of {width} coordinates, got shape {tuple(t.shape)}")
-    if not bool(torch.isfinite(t).all()):
+    if not tracing(t) and not bool(torch.isfinite(t).all()):
         raise ValueError(f"{name} contains a non-finite value")
     return t.reshape(-1, width)
 
@@ -75,17 +77,17 @@ def _per_element(v: Any, m: int, like: torch.Tensor, name: str, positive: bool =
         t = t.expand(m)
     if t.numel() != m:
         raise ValueError(f"{name} must have 1 or {m} values (one per element), got {t.numel()}")
-    if positive and not bool((t > 0).all()):
+    if positive and not tracing(t) and not bool((t > 0).all()):
         raise ValueError(f"{name} must be positive, got {v!r}")
     return t
 
 
 def _batchable(v: Any, m: int, like: torch.Tensor, name: str) -> torch.Tensor:
-    """Like :func:`_per_element`, but a (B, 1) tensor (B parameter sets, as ``@model`` passes
-    them) becomes (B, 1, 1): it broadcasts over (points, elements) and gives (B, ...) values."""
+    """Like :func:`_per_element`, but a (B, 1) tensor (B parameter sets, for a direct call)
+    becomes (B, 1, 1): it broadcasts over (points, elements) and gives (B, ...) values."""
     if isinstance(v, torch.Tensor) and v.ndim == 2 and v.shape[1] == 1:
         t = v.to(device=like.device, dtype=like.dtype)
-        if not bool((t > 0).all()):
+        if not tracing(t) and not bool((t > 0).all()):
             raise ValueError(f"{name} must be positive, got {v!r}")
         return t.reshape(-1, 1, 1)
     return _per_element(v, m, like, name)
@@ -128,7 +130,7 @@ def _segments(
     """Sum over segments of the closed-form line integral (times ``weight``); begin, end (M, 3), s (M,)."""
     axis = end - begin
     length = axis.norm(dim=-1)
-    if not bool((length > 0).all()):
+    if not tracing(length) and not bool((length > 0).all()):
         raise ValueError("segments must have a positive length (begin != end)")
     unit = axis / length[:, None]
 
@@ -294,7 +296,7 @@ def _triangle_frames(tri: torch.Tensor) -> tuple[torch.Tensor, ...]:
     t = ((p3 - p1) * e12).sum(-1) / (e12 * e12).sum(-1)
     foot = p1 + t[:, None] * e12
     height = (p3 - foot).norm(dim=-1)
-    if not bool((height > 1e-12 * edges.max(dim=1).values).all()):
+    if not tracing(height) and not bool((height > 1e-12 * edges.max(dim=1).values).all()):
         raise ValueError("triangles must have a positive area (non-collinear vertices)")
     u = e12 / e12.norm(dim=-1, keepdim=True)
     v = (p3 - foot) / height[:, None]
@@ -482,12 +484,12 @@ def convArc(
     m = c.shape[0]
     r = _per_element(radius, m, x, "radius")
     arc = _per_element(theta, m, x, "theta")
-    if not bool((arc <= 360.0).all()):
+    if not tracing(arc) and not bool((arc <= 360.0).all()):
         raise ValueError(f"theta must lie in (0, 360] degrees, got {theta!r}")
     ax = _rows(axis, x, 3, "axis")
     if ax.shape[0] == 1:
         ax = ax.expand(m, 3)
-    if ax.shape[0] != m or not bool((ax.norm(dim=-1) > 0).all()):
+    if ax.shape[0] != m or (not tracing(ax) and not bool((ax.norm(dim=-1) > 0).all())):
         raise ValueError(f"axis must hold 1 or {m} non-zero vectors, got {tuple(ax.shape)}")
     rot = _rotations(ax, _per_element(angle, m, x, "angle", positive=False) * (math.pi / 180.0))
     s = _batchable(S, m, x, "S")

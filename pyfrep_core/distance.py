@@ -37,6 +37,7 @@ from scipy.spatial import cKDTree
 
 from ._array import as_tensor, check_finite, check_option, check_points
 from .diff import grad, project_to_surface
+from .evaluate import evaluate
 from .mesh import Mesh, evaluate_grid, grid_axes, polygonize
 from .model import check_bounds
 from .progress import StopFlag
@@ -261,7 +262,7 @@ class TrueDistance:
             raise ValueError(f"points: {q.shape[0]} points exceed max_points={self.max_points}")
         dist = torch.as_tensor(self.unsigned(q.numpy()))
         with torch.no_grad():
-            sign = torch.sign(self.f(q))
+            sign = torch.sign(evaluate(self.f, q))
         d = (sign * dist).reshape(shape)
         return d.numpy() if was_numpy else d.to(t.device)
 

@@ -35,9 +35,11 @@ import numpy as np
 import torch
 from skimage.measure import marching_cubes
 
-from ._array import check_option, validated_inputs
+from . import _array
+from ._array import available_memory, check_option, validated_inputs
 from ._threads import intra_op_threads
 from .diff import project_to_surface, value_and_grad
+from .evaluate import budget_points, evaluate, name_of
 from .model import check_bounds
 
 __all__ = [
@@ -225,21 +227,6 @@ def grid_axes(bounds: Any, resolution: int | tuple[int, ...], dim: int = 3) -> l
     return [np.linspace(a, b, r) for a, b, r in zip(lo, hi, res)]
 
 
-def available_memory() -> int | None:
-    """Bytes of memory available to a new allocation (``MemAvailable``), or None if unknown."""
-    try:
-        with open("/proc/meminfo") as fh:
-            for line in fh:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except (OSError, ValueError, IndexError):
-        pass
-    try:
-        return int(os.sysconf("SC_AVPHYS_PAGES")) * int(os.sysconf("SC_PAGE_SIZE"))
-    except (ValueError, OSError, AttributeError):
-        return None
-
-
 def grid_memory(resolution: int | tuple[int, ...], dtype: torch.dtype = torch.float32) -> int:
     """Estimated peak bytes to evaluate and mesh a grid of ``resolution`` samples per axis.
 
@@ -272,7 +259,7 @@ def grid_memory(resolution: int | tuple[int, ...], dtype: torch.dtype = torch.fl
 
 def _check_memory(resolution: tuple[int, ...], dtype: torch.dtype) -> None:
     need = grid_memory(resolution, dtype)
-    have = available_memory()
+    have = _array.available_memory()
     if have is not None and need > have:
         shown = resolution[0] if len(set(resolution)) == 1 else resolution
         raise GridTooLargeError(
@@ -319,18 +306,20 @@ def _grid_chunks(shape: tuple[int, int, int], max_points: int):
 
 
 def _call(f: Callable, pts: torch.Tensor) -> tuple[torch.Tensor, float, float]:
-    """f on component-first points (3, ...) (so that x[..., 0] etc. are contiguous), its min and max.
+    """f on component-first points (3, ...) (so that x[:, 0] etc. are contiguous), its min and max.
 
-    Raises ValueError for a wrong output shape or a non-finite value (naming the point).
+    f is handed the points flattened to (N, 3) (the model contract); the values come back in
+    the block's shape.  Raises ValueError for a wrong output shape (naming f, the input and the
+    output shapes) or a non-finite value (naming the point).
     """
+    shape = tuple(pts.shape[1:])
     with torch.no_grad():
+        # f sees the block as a list of points (N, 3): a view, x[:, 0] etc. still contiguous
+        points = pts.reshape(3, -1).t()
         with validated_inputs():  # grid points from checked bounds: the primitives of f need not read them
-            vals = f(pts.movedim(0, -1))
-        shape = tuple(pts.shape[1:])
-        if not isinstance(vals, torch.Tensor) or tuple(vals.shape) != shape:
-            got = tuple(vals.shape) if hasattr(vals, "shape") else type(vals).__name__
-            raise ValueError(f"f must map points (..., 3) to values (...), got {got} for {(*shape, 3)}")
+            vals = evaluate(f, points, chunk=points.shape[0], label=name_of(f))
         _check_values_dtype(f, vals, pts.dtype)
+        vals = vals.reshape(shape)
         lo, hi = torch.aminmax(vals)
         lo, hi = float(lo), float(hi)
         if not (math.isfinite(lo) and math.isfinite(hi)):
@@ -340,19 +329,12 @@ def _call(f: Callable, pts: torch.Tensor) -> tuple[torch.Tensor, float, float]:
     return vals, lo, hi
 
 
-def _name(f: Callable) -> str:
-    """How an error message names a defining function: its name, else its repr."""
-    while isinstance(f, functools.partial):
-        f = f.func
-    return getattr(f, "__name__", None) or repr(f)
-
-
 def _check_values_dtype(f: Callable, values: torch.Tensor, dtype: torch.dtype) -> None:
     """Refuse values that are not floating point: an integer or boolean f has no gradient, so
     neither the vertices' projection onto f = 0 nor the normals (-grad f) exist."""
     if not values.is_floating_point():
         raise TypeError(
-            f"f ({_name(f)}) returned {str(values.dtype).removeprefix('torch.')} values for "
+            f"f ({name_of(f)}) returned {str(values.dtype).removeprefix('torch.')} values for "
             f"{str(dtype).removeprefix('torch.')} points; a defining function must return floating-point "
             "values (meshing needs its gradient: the normals, and the vertices' projection onto f = 0)"
         )
@@ -361,7 +343,7 @@ def _check_values_dtype(f: Callable, values: torch.Tensor, dtype: torch.dtype) -
 def _check_grid_options(fn: str, f: Any, dtype: Any) -> torch.dtype:
     """f callable and the grid dtype float32 or float64 (an integer grid rounds f and loses its zero set)."""
     if not callable(f):
-        raise TypeError(f"{fn}: f must be callable (points (..., 3) -> values (...)), got {type(f).__name__}")
+        raise TypeError(f"{fn}: f must be callable (points (N, 3) -> values (N,)), got {type(f).__name__}")
     return check_option(dtype, "dtype", fn, "choice", choices=GRID_DTYPES)
 
 
@@ -370,8 +352,9 @@ def _evaluate_grid(
 ) -> tuple[np.ndarray, float, float]:
     """f on the grid of ``axes`` plus its min and max; raises on a non-finite value."""
     device = torch.device(device)
-    if max_points is None:
-        max_points = _chunk_points(f, CHUNK_POINTS if device.type == "cpu" else CHUNK_POINTS_GPU)
+    if max_points is None:  # cache-sized on the CPU, and never above the memory budget of one call
+        default = _chunk_points(f, CHUNK_POINTS if device.type == "cpu" else CHUNK_POINTS_GPU)
+        max_points = min(default, budget_points(dtype, len(axes)))
     shape = tuple(len(a) for a in axes)
     out = np.empty(shape, dtype=np.float32 if dtype == torch.float32 else np.float64)
     gx, gy, gz = (torch.as_tensor(a, dtype=dtype, device=device) for a in axes)
@@ -618,11 +601,13 @@ def evaluate_grid(
 
     Parameters
     ----------
-    f : callable, torch points (..., 3) -> values (...).
+    f : callable, torch points (N, 3) -> values (N,) (a Model too).
     bounds : ((xmin, ymin, zmin), (xmax, ymax, zmax)); the grid's end points lie on them.
     resolution : samples per axis (>= 2), or one per axis.
     dtype : torch.float32 (fast) or torch.float64.
-    max_points : points per call of f (default 2^15 on the CPU).
+    max_points : points per call of f (default 2^15 on the CPU, 2^22 on accelerators, at most
+        :func:`pyfrep_core.evaluate.budget_points`: the memory budget of one call).  f gets
+        them as a list of points (N, 3), never as a grid block.
 
     Returns
     -------
@@ -663,8 +648,8 @@ def polygonize(
 
     Parameters
     ----------
-    f : callable (..., 3) -> (...) on torch tensors, or a Model (its default bounds are
-        used when ``bounds`` is None).
+    f : callable (N, 3) -> (N,) on torch tensors, or a Model (its default bounds are used when
+        ``bounds`` is None).  f is only ever called with lists of points (N, 3), in chunks.
     bounds : ((xmin, ymin, zmin), (xmax, ymax, zmax)); the grid's end points lie on them.
     resolution : grid samples per axis (an integer >= 2, or three).
     project : move the vertices onto f = 0 in float64 (root finding along each marching-cubes
@@ -847,7 +832,7 @@ def _f64(f: Callable, x: np.ndarray, device: Any) -> np.ndarray:
     def chunk(s: int) -> None:
         t = torch.as_tensor(x[s : s + size], dtype=torch.float64, device=device)
         with torch.no_grad(), validated_inputs():  # points on grid edges: finite, not read again per primitive
-            out[s : s + size] = f(t).cpu().numpy()
+            out[s : s + size] = evaluate(f, t, chunk=size).cpu().numpy()
 
     _map(chunk, list(range(0, len(x), size)), device)
     return out

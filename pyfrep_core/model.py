@@ -1,7 +1,17 @@
 """Named, bounded shape parameters: ``@model`` and ``Param`` (paper section 4, parametric modeling).
 
 A model declares its parameters once; the declaration drives the workbench sliders,
-the fitting bounds and sampling.  Calling a model evaluates its defining function:
+the fitting bounds and sampling.  Calling a model evaluates its defining function.
+
+The calling contract: the kernel calls the defining function ``fn(x, **params)`` only with
+points ``x`` of shape (N, d) (a 2-D tensor: never a grid block, never a single 1-D point) and
+with every parameter a float or a 0-d tensor, and expects values of shape (N,).  Any torch code
+that does so works: ``p[:, i]`` indexing as in the paper's code, tuples built from parameters
+(``sphere(x, center=(cx, 0.0, 0.0), r=r)``), ``torch.stack``, ``torch.where``, Python arithmetic
+on parameters.  Points of another shape (..., d) are flattened for it and the values reshaped
+back; parameters given as (B,) tensors (B parameter sets) are mapped with ``torch.func.vmap``,
+so ``fn`` still sees 0-d parameters, and give (B, ...) values; a wrong output shape is a
+ValueError naming the model (see :mod:`pyfrep_core.evaluate`, which does all of it).
 
 >>> import torch
 >>> from pyfrep_core import model, Param, sphere
@@ -35,6 +45,7 @@ from ._array import (
     tracing,
     validated_inputs,
 )
+from .evaluate import call_sets, evaluate
 
 Bounds = tuple[tuple[float, ...], tuple[float, ...]]
 
@@ -163,6 +174,12 @@ class Model:
     def __call__(self, x: Any, **overrides: Any) -> Any:
         """Evaluate f at points ``x`` (..., dim); tensors of shape (B,) as parameters give (B, ...).
 
+        The defining function gets the points as (N, dim) and 0-d parameters (the contract in the
+        module docstring): (B,) parameters run through ``torch.func.vmap`` (gradients flow to them),
+        or set by set, with one RuntimeWarning per model, where vmap cannot run it; large point
+        sets run in chunks within the memory budget of :mod:`pyfrep_core.evaluate`.  A result of
+        any shape other than (N,) raises ValueError naming the model and both shapes.
+
         The points are checked here, once (the primitives inside do not check them again):
         float32 or float64 tensors or numpy arrays, or lists (float64), of shape (..., dim), finite;
         complex, integer and boolean arrays raise TypeError, NaN and inf ValueError naming the
@@ -196,31 +213,40 @@ class Model:
         if not traced:  # parameters: always (an outer call checked its points, not these values)
             for name, v in values.items():
                 check_param(v, name, label)
-        batch = None
+        scalars, batched = {}, {}
         for name, v in values.items():
             if isinstance(v, np.ndarray):
                 v = torch.as_tensor(v, dtype=t.dtype, device=t.device)
             if isinstance(v, torch.Tensor) and v.ndim >= 1:
                 if v.ndim != 1:
                     raise ValueError(f"parameter {name} must be a scalar or a (B,) batch, got shape {tuple(v.shape)}")
-                if batch is not None and v.shape[0] != batch:
-                    raise ValueError(f"parameter {name} has a batch of {v.shape[0]}, others have {batch}")
-                batch = v.shape[0]
-                v = v.to(t.dtype).reshape(batch, *([1] * (t.ndim - 1)))
-            values[name] = v
+                sizes = {b.shape[0] for b in batched.values()}
+                if sizes and v.shape[0] not in sizes:
+                    raise ValueError(f"parameter {name} has a batch of {v.shape[0]}, others have {sizes.pop()}")
+                batched[name] = v.to(dtype=t.dtype, device=t.device)
+            else:
+                scalars[name] = v
+        points = t.reshape(-1, t.shape[-1])  # the model sees (N, d) only: grids and single points flattened
+        shape = (next(iter(batched.values())).shape[0],) if batched else ()
+        shape += tuple(t.shape[:-1])
         if check:
             with validated_inputs():
                 try:
-                    out = self.fn(t, **values)
+                    out = self._call(points, scalars, batched)
                 except ValueError as err:
                     raise named_error(err, label)  # noqa: B904  (the same exception, its message prefixed)
             if isinstance(out, torch.Tensor) and out.is_floating_point() and out.dtype != t.dtype:
                 out = out.to(t.dtype)
         else:
-            out = self.fn(t, **values)
-        if batch is not None and out.shape[0] != batch:
-            out = out.expand(batch, *t.shape[:-1])
+            out = self._call(points, scalars, batched)
+        out = out.reshape(shape)
         return out.detach().cpu().numpy() if was_numpy else out
+
+    def _call(self, x: torch.Tensor, scalars: dict[str, Any], batched: dict[str, torch.Tensor]) -> torch.Tensor:
+        """The defining function at points (N, d): one parameter set, or B sets (values (B, N))."""
+        if batched:
+            return call_sets(self.fn, x, scalars, batched, self.__name__)
+        return evaluate(self.fn, x, scalars, label=self.__name__)
 
 
 def model(bounds: Any = None, dim: int = 3, **params: Param) -> Callable[[Callable], Model]:

@@ -91,6 +91,7 @@ from ._array import as_tensor, check_finite, check_option, check_points, skip_ch
 from ._threads import intra_op_threads
 from .diff import value_and_grad
 from .distance import MAX_RESOLUTION, surface_samples, true_distance
+from .evaluate import evaluate
 from .model import check_bounds
 from .progress import Event, Progress, StopFlag
 
@@ -220,9 +221,9 @@ class RedistancedSDF(nn.Module):
         return self.signed_network(x).abs()
 
     def sign(self, x: torch.Tensor) -> torch.Tensor:
-        """sign(f(x)) without gradient, in x's dtype."""
+        """sign(f(x)) without gradient, in x's dtype; x (..., 3) is handed to f as (N, 3)."""
         with torch.no_grad():
-            return torch.sign(self.f(x.detach()))
+            return torch.sign(evaluate(self.f, x.detach()))
 
     def forward(self, x: Any) -> Any:
         """The redistanced field at points x (..., 3), checked as a model call checks them.
@@ -323,7 +324,7 @@ def _training_pool(
     if stop is not None and stop.is_set():
         return None
     with torch.no_grad():
-        d_off = torch.sign(f(off)).to(torch.float64) * unsigned
+        d_off = torch.sign(evaluate(f, off)).to(torch.float64) * unsigned
     x = torch.cat([on, off])
     d = torch.cat([torch.zeros(n_surface, dtype=torch.float64), d_off])
     return x, d

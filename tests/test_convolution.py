@@ -1,6 +1,7 @@
 """Cauchy-kernel convolution surfaces against numerical quadrature and closed-form limits."""
 
 import math
+import warnings
 
 import numpy as np
 import pytest
@@ -257,12 +258,14 @@ def test_batched_parameters_give_one_row_per_set():
         singles = torch.stack([call(float(v)) for v in s_batch[:, 0]])
         torch.testing.assert_close(batch, singles, rtol=0, atol=1e-14)
 
-    # through @model, which passes (B,) parameters as (B, 1)
+    # through @model, which maps (B,) parameters with torch.func.vmap (the model sees 0-d S and R)
     @model(S=Param(2.0, 0.5, 5.0), R=Param(0.2, 0.05, 0.5))
     def rod(p, S, R):
         return convLineR(p, [0, 0, 0], [1, 0, 0], S, R)
 
-    out = rod(x, S=torch.tensor([1.0, 3.0], dtype=F64), R=torch.tensor([0.1, 0.3], dtype=F64))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # vmap runs it: no fallback to a loop over the sets
+        out = rod(x, S=torch.tensor([1.0, 3.0], dtype=F64), R=torch.tensor([0.1, 0.3], dtype=F64))
     assert out.shape == (2, 9)
     torch.testing.assert_close(out[1], convLineR(x, [0, 0, 0], [1, 0, 0], 3.0, 0.3), rtol=0, atol=1e-14)
 

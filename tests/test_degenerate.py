@@ -19,7 +19,7 @@ import pytest
 import torch
 
 import pyfrep_core as P
-from pyfrep_core import _array, mesh, sdf
+from pyfrep_core import _array, sdf
 
 NAN, INF = math.nan, math.inf
 X3 = torch.tensor([[0.3, -0.2, 0.1], [1.0, 2.0, 3.0]], dtype=torch.float64)
@@ -321,7 +321,7 @@ def test_checked_primitives_compile_to_the_eager_values():
 @pytest.fixture
 def budget_8gib(monkeypatch):
     """The available memory fixed at 8 GiB, so the estimates are checked the same on every machine."""
-    monkeypatch.setattr(mesh, "available_memory", lambda: 8 << 30)
+    monkeypatch.setattr(_array, "available_memory", lambda: 8 << 30)
 
 
 def test_spinodoid_waves_are_checked_against_the_memory(budget_8gib):

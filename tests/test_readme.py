@@ -25,6 +25,10 @@ def test_readme_blocks_run_in_order(tmp_path, monkeypatch):
     assert ns["mesh"].n_vertices > 0 and (tmp_path / "sphere.ply").exists()
     assert np.abs(ns["c"].H - 2.0).max() < 1e-9 and np.abs(ns["c"].K - 4.0).max() < 1e-9
     assert ns["part"](ns["x"], r=ns["torch"].tensor([0.3, 0.4, 0.5])).shape == (3, 1000)
+    # the paper-style model: 4/3 pi to within (h / r)^2 of a cell h = 2.4 / 47 (marching cubes' chords), two sets
+    assert ns["ball_mesh"].volume() == pytest.approx(4 / 3 * np.pi, rel=(2.4 / 47) ** 2)
+    sets = ns["paper_ball"](ns["torch"].zeros(2, 3), r=ns["torch"].tensor([0.6, 0.8]))
+    assert sets.tolist() == pytest.approx([[0.36, 0.36], [0.64, 0.64]])
     for name, value in ns["truth"].items():
         assert ns["result"].params[name] == pytest.approx(value, rel=1e-3)
     assert ns["err"].mean < 2e-2

@@ -47,6 +47,7 @@ __all__ = [
     "ellConeZ",
     "superEll",
     "superQuadric",
+    "mapBlob",
     "blobby",
     "metaBall",
     "soft",
@@ -646,10 +647,10 @@ def superEll(
 
 
 def _euler_local(x: torch.Tensor, r: Center, t: Center) -> torch.Tensor:
-    """Local coordinates ``Rx(rx)^T Ry(ry)^T Rz(rz)^T (x - t)`` (the inverse of R = Rz Ry Rx, then + t)."""
+    """Local coordinates ``Rx(r3)^T Ry(r2)^T Rz(r1)^T (x - t)``: x = R local + t, R = Rz(r1) Ry(r2) Rx(r3)."""
     rv = vec(r, x, name="r")
     p = x - vec(t, x, name="t")
-    return rotate3DX(rotate3DY(rotate3DZ(p, rv[..., 2]), rv[..., 1]), rv[..., 0])
+    return rotate3DX(rotate3DY(rotate3DZ(p, rv[..., 0]), rv[..., 1]), rv[..., 2])
 
 
 @frep
@@ -663,17 +664,19 @@ def superQuadric(
     """Superquadric (superellipsoid) in a general pose, the reference code's ``superQuadric``.
 
     ``1 - ((|u/a1|^(2/e2) + |v/a2|^(2/e2))^(e2/e1) + |w/a3|^(2/e1))`` where (u, v, w) are
-    the local coordinates of x: the solid is built at the origin, rotated by ``rx``
-    about x, then ``ry`` about y, then ``rz`` about z (radians, R = Rz Ry Rx) and
-    then translated by ``t``.  Equal to :func:`superEll` with ``s1 = e1, s2 = e2``
-    when ``r = 0``.
+    the local coordinates of x.  ``r = (r1, r2, r3)`` are Z-Y-X Euler angles, in the
+    reference code's order (MATLAB's ``eul2rotm``): the solid is built at the origin, rotated
+    by ``r3`` about x, then ``r2`` about y, then ``r1`` about z (radians, R = Rz(r1) Ry(r2)
+    Rx(r3)), then translated by ``t``.  Equal to :func:`superEll` with ``s1 = e1, s2 = e2``
+    when ``r = 0``.  (The reference code raises the signed local coordinates to the powers:
+    NaN on their negative side unless 2/e is an even integer; here their absolute values.)
 
     Parameters
     ----------
     x : (..., 3) points.
     e : (2,) exponents (e1 north-south, e2 east-west), > 0.
     a : (3,) semi-axes (> 0).
-    r : (3,) rotation angles in radians about x, y, z.
+    r : (3,) Euler angles in radians: about z, then y, then x (R = Rz(r1) Ry(r2) Rx(r3)).
     t : (3,) translation (the center of the solid).
 
     Returns
@@ -684,7 +687,7 @@ def superQuadric(
     --------
     >>> import math, torch
     >>> p = torch.tensor([[1.0, 2.0, 0.0], [1.0, 0.0, 0.0]], dtype=torch.float64)
-    >>> f = superQuadric(p, e=(0.5, 0.5), a=(2.0, 1.0, 1.0), r=(0.0, 0.0, math.pi / 2), t=(1.0, 0.0, 0.0))
+    >>> f = superQuadric(p, e=(0.5, 0.5), a=(2.0, 1.0, 1.0), r=(math.pi / 2, 0.0, 0.0), t=(1.0, 0.0, 0.0))
     >>> f.round(decimals=12)
     tensor([0., 1.], dtype=torch.float64)
     """
@@ -829,6 +832,53 @@ def soft(x: torch.Tensor, x0: Values, y0: Values, z0: Values, d: Values, T: floa
     q = _sq_dist_to_centers(x, x0, y0, z0) / (d * d)  # (r/d)^2
     w = 1.0 - 22.0 / 9.0 * q + 17.0 / 9.0 * q * q - 4.0 / 9.0 * q * q * q
     return torch.where(q <= 1.0, w, torch.zeros_like(w)).sum(-1) - T
+
+
+@frep
+def mapBlob(
+    x: torch.Tensor,
+    fobj: float | torch.Tensor,
+    x0: Values,
+    y0: Values,
+    z0: Values,
+    fobj0: Values,
+    sigma: Values,
+) -> torch.Tensor:
+    """Local dents (or bumps) in a field: ``fobj - sum_i fobj0_i / (1 + |x - c_i|^2 / sigma_i^2)``.
+
+    The reference code's ``mapBlob``: each center ``c_i = (x0_i, y0_i, z0_i)`` lowers the field
+    ``fobj`` of a solid by ``fobj0_i`` at the center, by half of it at distance ``sigma_i``, and
+    by a Cauchy-like tail ``fobj0_i sigma_i^2 / r^2`` far away.  ``fobj0_i > 0`` carves a dent
+    (material removed where ``fobj < fobj0_i``), ``fobj0_i < 0`` raises a bump.  (The reference
+    adds 1e-9 to ``sigma_i^2`` against division by zero; here sigma must be positive: a
+    relative difference of ``1e-9 / sigma^2``.)
+
+    Parameters
+    ----------
+    x : (..., 3) points.
+    fobj : (...) field values of the solid to deform at ``x`` (or a number).
+    x0, y0, z0 : (K,) coordinates of the K centers.
+    fobj0 : (K,) depths of the dents (field units), or one number for all.
+    sigma : (K,) widths (> 0, length units), or one number for all.
+
+    Returns
+    -------
+    (...) field values.
+
+    Examples
+    --------
+    >>> import torch
+    >>> x = torch.tensor([[1.0, 0.0, 0.0], [1.5, 0.0, 0.0], [0.0, 0.0, 0.0]], dtype=torch.float64)
+    >>> f = sphere(x, r=1.0)
+    >>> mapBlob(x, f, x0=[1.0], y0=[0.0], z0=[0.0], fobj0=[0.5], sigma=[0.5])
+    tensor([-0.5000, -1.5000,  0.9000], dtype=torch.float64)
+    """
+    for name, value in (("x0", x0), ("y0", y0), ("z0", z0), ("fobj0", fobj0)):
+        check_param(value, name, "mapBlob")  # fobj: field values, read by frep (finite) like points
+    check_param(sigma, "sigma", "mapBlob", positive=True)
+    x0, y0, z0, fobj0, sigma = _per_center(x, x0=x0, y0=y0, z0=z0, fobj0=fobj0, sigma=sigma)
+    r2 = _sq_dist_to_centers(x, x0, y0, z0)
+    return fobj - (fobj0 / (1.0 + r2 / (sigma * sigma))).sum(-1)
 
 
 @frep

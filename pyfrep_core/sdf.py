@@ -32,6 +32,7 @@ from typing import Any
 
 import torch
 
+from . import primitives
 from ._array import as_tensor, check_param, check_points, frep, param_array, safe_sqrt, shown, vec
 
 Vector = tuple[float, float, float] | torch.Tensor
@@ -61,6 +62,7 @@ __all__ = [
     "cappedCylinder",
     "cappedCone",
     "frame",
+    "superQuadric",
     "union",
     "intersection",
     "difference",
@@ -718,6 +720,63 @@ def frame(
         _box_distance(torch.stack(torch.broadcast_tensors(qx, qy, pz), -1)),
     ]
     return -torch.minimum(torch.minimum(bars[0], bars[1]), bars[2])
+
+
+@frep
+def superQuadric(
+    x: torch.Tensor,
+    e: tuple[float, float] | torch.Tensor = (1.0, 1.0),
+    a: Vector = (1.0, 1.0, 1.0),
+    r: Vector = (0.0, 0.0, 0.0),
+    t: Vector = (0.0, 0.0, 0.0),
+) -> torch.Tensor:
+    """Superquadric with the radial distance of Jaklic et al.: ``d = |x - t| (F^(-e1/2) - 1)``.
+
+    ``F`` is the inside-outside function of :func:`pyfrep_core.superQuadric` (``F = 1 - f``,
+    same arguments: exponents ``e``, semi-axes ``a``, Z-Y-X Euler angles ``r``, center ``t``).
+    F is homogeneous of degree 2/e1 about the center, so ``d`` is the signed distance from x
+    to the surface *along the ray from the center*: exact for a sphere (a1 = a2 = a3,
+    e = (1, 1)), an approximation elsewhere (it over-estimates the distance where the ray
+    meets the surface obliquely), positive inside.  Written as ``rho(n) - |x - t|`` with
+    ``rho(n) = F(n)^(-e1/2)`` the center's distance to the surface in the direction
+    ``n = (x - t) / |x - t|``, so it is finite everywhere; at the center itself ``n`` is
+    taken along z.  (The reference code multiplies by the norm of the whole (N, 3) array
+    of points instead of each point's, so its values depend on the batch; the surface is
+    the same.)
+
+    Parameters
+    ----------
+    x : (..., 3) points.
+    e : (2,) exponents (e1 north-south, e2 east-west), > 0.
+    a : (3,) semi-axes (> 0).
+    r : (3,) Euler angles in radians: about z, then y, then x (R = Rz(r1) Ry(r2) Rx(r3)).
+    t : (3,) center.
+
+    Returns
+    -------
+    (...) radial signed distance, positive inside.
+
+    Examples
+    --------
+    >>> import torch
+    >>> p = torch.tensor([[0.0, 0.0, 0.0], [3.0, 0.0, 0.0], [0.0, 0.0, 0.25]], dtype=torch.float64)
+    >>> superQuadric(p, e=(1.0, 1.0), a=(2.0, 1.0, 0.5))  # an ellipsoid: exact along its axes
+    tensor([ 0.5000, -1.0000,  0.2500], dtype=torch.float64)
+    """
+    x = _points(x)
+    check_param(e, "e", "sdf.superQuadric", positive=True)
+    check_param(a, "a", "sdf.superQuadric", positive=True)
+    check_param(r, "r", "sdf.superQuadric")
+    check_param(t, "t", "sdf.superQuadric")
+    center = vec(t, x, name="t")
+    d = x - center
+    rho = _length(d)
+    at_center = _dot(d, d) == 0
+    up = torch.tensor((0.0, 0.0, 1.0), dtype=x.dtype, device=x.device)
+    n = torch.where(at_center[..., None], up, d / torch.where(at_center, 1.0, rho)[..., None])
+    inside_outside = 1.0 - primitives.superQuadric(center + n, e=e, a=a, r=r, t=t)  # F(n) > 0
+    e1 = vec(e, x, n=2, name="e")[..., 0]
+    return inside_outside ** (-0.5 * e1) - rho
 
 
 # ----------------------------------------------------------------------------- operations

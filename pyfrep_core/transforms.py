@@ -41,6 +41,7 @@ __all__ = [
     "twistX",
     "twistY",
     "twistZ",
+    "twist",
     "taperX",
     "taperY",
     "taperZ",
@@ -138,14 +139,26 @@ def shift3D(x: torch.Tensor, dx: Number = 0.0, dy: Number = 0.0, dz: Number = 0.
     return _stack(px - dx, py - dy, pz - dz)
 
 
+def _per_axis(factor: Any) -> bool:
+    """True for three factors (sx, sy, sz): a length-3 sequence, or a tensor whose last axis has 3 entries."""
+    if isinstance(factor, torch.Tensor):  # numpy arrays arrive as tensors (frep converts them)
+        return factor.ndim >= 1 and factor.shape[-1] == 3
+    return isinstance(factor, list | tuple) and len(factor) == 3
+
+
 @frep
-def scale(x: torch.Tensor, factor: Number) -> torch.Tensor:
-    """Uniform scaling about the origin: returns ``x / factor``; the solid grows by ``factor``.
+def scale(x: torch.Tensor, factor: Number | Vector) -> torch.Tensor:
+    """Scaling about the origin: returns ``x / factor``; the solid grows by ``factor``.
+
+    ``factor`` is one number (uniform scaling) or three, ``(sx, sy, sz)``, one per axis (as the
+    reference code's ``scale(p, (sx, sy, sz))``; the same as :func:`scale3D`).
 
     Parameters
     ----------
     x : (..., 3) points.
-    factor : scale factor (non-zero; a negative factor also mirrors the solid through the origin).
+    factor : scale factor, or (3,) factors along x, y, z; non-zero (a negative factor also
+        mirrors the solid).  A (B, 1) tensor gives B uniform scalings, a (B, 3) tensor B
+        per-axis ones: (B, N, 3) points.
 
     Returns
     -------
@@ -156,10 +169,18 @@ def scale(x: torch.Tensor, factor: Number) -> torch.Tensor:
     >>> import torch
     >>> scale(torch.tensor([[2.0, 4.0, 6.0]]), 2.0)
     tensor([[1., 2., 3.]])
+    >>> scale(torch.tensor([[2.0, 4.0, 6.0]]), (2.0, 4.0, 3.0))
+    tensor([[1., 1., 2.]])
     """
     check_points(x, empty=True)  # no points give no values
-    check_param(factor, "factor", "scale", nonzero=True)
-    return x / _num(factor, x)[..., None]
+    if not _per_axis(factor):
+        check_param(factor, "factor", "scale", nonzero=True)
+        return x / _num(factor, x)[..., None]
+    check_param(factor, "factor", "scale")
+    values = param_array(factor, "factor", "scale")
+    if values is not None and not (values != 0).all():
+        raise ValueError(f"scale: factor must have no zero component, got {shown(factor)!r}")
+    return x / vec(factor, x, name="factor")
 
 
 @frep
@@ -459,8 +480,8 @@ def twistZ(x: torch.Tensor, z1: Number, z2: Number, theta1: Number, theta2: Numb
     """Twist about the z axis (HyperFun ``hfTwistZ``): the section at z turns by ``theta(z)``.
 
     ``theta`` is linear in z with ``theta(z1) = theta1``, ``theta(z2) = theta2``; the
-    direction is that of :func:`rotate3DZ`.  (The reference code interpolates along y
-    here by mistake; this one uses z.)
+    direction is that of :func:`rotate3DZ`.  The same values as the reference code's
+    ``twistZ`` (which read y instead of z until its fix of 2 October 2025).
 
     Parameters
     ----------
@@ -484,6 +505,38 @@ def twistZ(x: torch.Tensor, z1: Number, z2: Number, theta1: Number, theta2: Numb
     check_param(theta1, "theta1", "twistZ")
     check_param(theta2, "theta2", "twistZ")
     x2, y2 = _rotate_pair(px, py, _twist_angle(pz, z1, z2, theta1, theta2))
+    return _stack(x2, y2, pz)
+
+
+@frep
+def twist(x: torch.Tensor, k: Number) -> torch.Tensor:
+    """Twist about the z axis by ``k`` radians per unit of height (the reference code's ``twist``).
+
+    Returns ``(x cos kz - y sin kz, x sin kz + y cos kz, z)``: the points turn by ``+k z``
+    about z, so the solid's section at height z turns by ``-k z`` (against :func:`rotate3DZ`'s
+    direction).  The same values as the reference code: ``twist(x, k)`` equals
+    ``twistZ(x, 0, 1, 0, -k)``.
+
+    Parameters
+    ----------
+    x : (..., 3) points.
+    k : twist rate in radians per length unit (a float, a 0-d tensor, or (B, 1) for B rates).
+
+    Returns
+    -------
+    (..., 3) points.
+
+    Examples
+    --------
+    >>> import math, torch
+    >>> p = torch.tensor([[1.0, 0.0, 1.0], [1.0, 0.0, 0.0]], dtype=torch.float64)
+    >>> twist(p, math.pi / 2).round(decimals=12)  # at z = 1 the point turns by a quarter turn
+    tensor([[0., 1., 1.],
+            [1., 0., 0.]], dtype=torch.float64)
+    """
+    px, py, pz = _points(x)
+    check_param(k, "k", "twist")
+    x2, y2 = _rotate_pair(px, py, -_num(k, x) * pz)
     return _stack(x2, y2, pz)
 
 

@@ -41,6 +41,8 @@ ARGS = {
     "taperY": dict(y1=-1.0, y2=1.0, s1=1.0, s2=0.5),
     "taperZ": dict(z1=-1.0, z2=1.0, s1=1.0, s2=0.5),
     "bend": dict(k=0.5),
+    "twist": dict(k=0.5),
+    "mapBlob": dict(fobj=0.5, x0=[0.0], y0=[0.0], z0=[0.0], fobj0=[0.2], sigma=[0.5]),
     "spinodoid": dict(numwaves=50),
     "convPoint": dict(vect=[0.0, 0.0, 0.0], S=1.0, T=0.1),
     "convLine": dict(begin=[0.0, 0.0, 0.0], end=[1.0, 0.0, 0.0], S=1.0, T=0.1),

@@ -180,8 +180,8 @@ def fit_error(model: Model, points: Any, params: Mapping[str, float] | None = No
     check_finite(x, "points")
     values = model.check(**dict(params or {}))
     with torch.no_grad():
-        out = [model(x[i : i + CHUNK], **values).abs() for i in range(0, x.shape[0], CHUNK)]
-    return torch.cat(out).cpu().numpy()
+        out = model(x, **values).abs()  # in chunks within the memory budget of one call (pyfrep_core.evaluate)
+    return out.cpu().numpy()
 
 
 def _evolution(prob: _Problem, x: torch.Tensor, gen: torch.Generator, cfg: dict, init_u, report) -> tuple:
@@ -275,9 +275,9 @@ def _sgd(prob: _Problem, x: torch.Tensor, gen: torch.Generator, cfg: dict, u0: t
 
 
 def _residuals(prob: _Problem, x: torch.Tensor, p: torch.Tensor) -> torch.Tensor:
-    """f(x_i; p), (N,), in chunks of points."""
+    """f(x_i; p), (N,) (the model call chunks the points within its memory budget)."""
     with torch.no_grad():
-        return torch.cat([prob.f(x[i : i + CHUNK], p) for i in range(0, x.shape[0], CHUNK)])
+        return prob.f(x, p)
 
 
 def _jacobian_per_point(prob: _Problem, x: torch.Tensor, p: torch.Tensor) -> torch.Tensor | None:

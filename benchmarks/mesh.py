@@ -114,7 +114,7 @@ def main() -> None:
         f"load average {', '.join(f'{x:.2f}' for x in os.getloadavg())})"
     )
     fast_model = compiled(fig1_part)
-    warm = warm_up(fast_model, sensitivities=False)
+    warm = warm_up(fast_model)
     for n in RESOLUTIONS:
         seconds, mesh = median_seconds(lambda n=n: polygonize(fig1_part, BOUNDS, n), runs)
         fast, sparse = median_seconds(lambda n=n: polygonize(fig1_part, BOUNDS, n, sparse=True), runs)

@@ -8,7 +8,7 @@ Fig. 1 part on a 128^3 grid takes 10 ms on one core against 50 ms eager.  That i
 workbench's live re-meshing runs on (``benchmarks/slider.py``).
 
 The price is the compilation: a few seconds per variant the first time it is met (float32
-grid values, float64 vertex values, float64 value and gradient, per-point df/dp), cached on
+grid values, float64 vertex values, float64 value and gradient), cached on
 disk by Inductor for later processes.  :func:`warm_up` pays it ahead of time; the shape
 panel does so on a background thread and re-meshes eagerly meanwhile.
 
@@ -16,11 +16,14 @@ What goes through the compiled kernel, and what stays eager
 -----------------------------------------------------------
 - values (no gradient wanted): compiled;
 - first derivatives taken by the kernel's own passes (:func:`pyfrep_core.value_and_grad`,
-  ``grad``, :func:`pyfrep_core.sensitivity.param_derivative`): compiled, forward and backward;
+  ``grad``): compiled, forward and backward;
 - anything else that differentiates (Hessians and curvature, ``create_graph``, a user's own
   ``torch.autograd.grad``, ``torch.func`` transforms, forward-mode AD), batched (B,)
   parameters, and fewer than two points: the eager model, so every result stays correct
-  (torch.compile cannot differentiate its kernels twice);
+  (torch.compile cannot differentiate its kernels twice).  Per-point parameter derivatives
+  (:func:`pyfrep_core.param_grad`, :func:`pyfrep_core.sensitivity.normal_velocity`, the
+  fitting Jacobian) are taken per sample under ``torch.func.vmap``/``grad``, hence eagerly:
+  the eager model's values, bit for bit;
 - a model that fails to compile (an operation Inductor lacks, no C++ compiler): eager,
   with one RuntimeWarning naming the error.
 
@@ -46,7 +49,7 @@ from .model import Model
 __all__ = ["compiled", "first_order", "warm_up"]
 
 CHUNK_POINTS = 1 << 18  # points per call: a fused loop keeps no temporaries, so larger chunks only save calls
-RECOMPILE_LIMIT = 64  # variants per model (dtypes x values, grad f, df/dp per parameter); set process-wide
+RECOMPILE_LIMIT = 64  # variants per model (dtypes x values, grad f); set process-wide
 
 _state = threading.local()
 
@@ -103,7 +106,7 @@ class CompiledModel(Model):
         self.eager = eager
         self.failure: BaseException | None = None
         self._kernel = torch.compile(eager.fn, dynamic=dynamic)
-        # variants are per code object (dtype, grad f, df/dp per parameter): raise dynamo's limit, never lower it
+        # variants are per code object (dtype, grad f): raise dynamo's limit, never lower it
         config = torch._dynamo.config
         config.recompile_limit = max(config.recompile_limit, RECOMPILE_LIMIT)
         self._lock = threading.Lock()
@@ -122,12 +125,11 @@ class CompiledModel(Model):
         return 1 if x.device.type == "cpu" else None
 
     def _arguments(self, flat: torch.Tensor, params: dict[str, Any]) -> dict[str, torch.Tensor] | None:
-        """Parameters as tensors for the kernel: scalars (0-d), or one value per point (N,); None otherwise."""
+        """Parameters as 0-d tensors for the kernel; None when one is not a scalar."""
         out = {}
-        n = flat.shape[0]
         for name, v in params.items():
             if isinstance(v, torch.Tensor):
-                if v.ndim == 0 or (v.ndim == 1 and v.shape[0] == n):
+                if v.ndim == 0:
                     out[name] = v.to(dtype=flat.dtype, device=flat.device)
                 else:
                     return None  # a (B, 1, ...) batch: eager broadcasting
@@ -138,8 +140,7 @@ class CompiledModel(Model):
         return out
 
     def _evaluate(self, x: torch.Tensor, params: dict[str, Any]) -> torch.Tensor:
-        per_point = any(isinstance(v, torch.Tensor) and v.ndim == 1 for v in params.values())
-        if self.failure is not None or _needs_eager(x, params) or (per_point and x.ndim != 2):
+        if self.failure is not None or _needs_eager(x, params):
             return self.eager.fn(x, **params)
         # one layout, component-first (x[:, 0] contiguous, so the fused loop vectorizes): strides are compiled in
         flat = x.reshape(-1, x.shape[-1])
@@ -209,15 +210,14 @@ def warm_up(
     params: dict[str, Any] | None = None,
     dtypes: tuple[torch.dtype, ...] = (torch.float32, torch.float64),
     gradients: tuple[torch.dtype, ...] = (torch.float64,),
-    sensitivities: tuple[str, ...] | bool = True,
     device: str | torch.device = "cpu",
 ) -> float:
     """Compile the variants a re-mesh uses, ahead of time; returns the seconds it took.
 
     Values in each of ``dtypes`` (polygonize's grid in float32, its vertices in float64);
-    value and grad f in each of ``gradients`` (the vertices' normals); with
-    ``sensitivities`` (True: every parameter), per-point df/dp in float64 (the panel's
-    colouring).  Points are drawn inside the model's bounds.  The kernels then run at once
+    value and grad f in each of ``gradients`` (the vertices' normals).  Per-point df/dp (the
+    panel's colouring) needs no kernel: it runs eagerly under ``torch.func``.  Points are
+    drawn inside the model's bounds.  The kernels then run at once
     on first real use.  Each variant compiles in a few seconds the first time on this
     machine (the Fig. 1 part: about 35 s in all with an empty Inductor cache, 3 s from
     the on-disk cache).
@@ -226,14 +226,13 @@ def warm_up(
     --------
     >>> from pyfrep_core.models import fig1_part
     >>> fast = compiled(fig1_part)
-    >>> seconds = warm_up(fast, dtypes=(torch.float64,), sensitivities=False)  # compiles, once per process
-    >>> warm_up(fast, dtypes=(torch.float64,), sensitivities=False) < 1.0  # compiled already
+    >>> seconds = warm_up(fast, dtypes=(torch.float64,))  # compiles, once per process
+    >>> warm_up(fast, dtypes=(torch.float64,)) < 1.0  # compiled already
     True
     """
     import time
 
     from .diff import value_and_grad
-    from .sensitivity import param_derivative
 
     if not isinstance(model, CompiledModel):
         raise TypeError(f"warm_up takes a CompiledModel (see compiled()), got {type(model).__name__}")
@@ -245,12 +244,9 @@ def warm_up(
     points = torch.as_tensor(lo, dtype=torch.float64) + unit * (
         torch.as_tensor(hi, dtype=torch.float64) - torch.as_tensor(lo, dtype=torch.float64)
     )
-    names = model.names if sensitivities is True else list(sensitivities or ())
     for dtype in dtypes:
         with torch.no_grad():
             model(points.to(dtype=dtype, device=device), **values)
     for dtype in gradients:
         value_and_grad(lambda p: model(p, **values), points.to(dtype=dtype, device=device))
-    for name in names:
-        param_derivative(model, points.to(device=device), name, values)
     return time.perf_counter() - start

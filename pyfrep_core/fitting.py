@@ -8,8 +8,9 @@ up to three stages:
    scales of the microstructure, so gradient descent alone stalls in a local minimum, Fig. 7);
 2. ``"sgd"``: Adam on random batches of the points (the paper's SGD on ``E~``);
 3. ``"polish"``: bounded least squares (scipy's trust-region reflective) on the residuals
-   ``f(x_i; p)`` with the Jacobian ``df(x_i)/dp`` by forward-mode autodiff, since E is a sum of
-   squares: it converges quadratically to the minimum instead of jittering around it.
+   ``f(x_i; p)`` with the Jacobian ``df(x_i)/dp`` by per-sample reverse-mode autodiff (the
+   kernel's one per-point parameter derivative, :func:`pyfrep_core.diff.param_grad`), since E
+   is a sum of squares: it converges quadratically to the minimum instead of jittering around it.
 
 >>> from pyfrep_core import model, Param, sphere, sample_surface
 >>> @model(bounds=((-2,) * 3, (2,) * 3), r=Param(1.0, 0.5, 1.5), cx=Param(0.0, -0.5, 0.5))
@@ -25,7 +26,6 @@ from __future__ import annotations
 
 import math
 import time
-import warnings
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -35,13 +35,13 @@ import torch
 
 from ._array import as_tensor, check_finite, check_option, check_points
 from ._threads import intra_op_threads
+from .diff import _param_jacobian
 from .model import Model
 from .progress import Event, Progress, StopFlag
 
 __all__ = ["FitResult", "fit", "fit_error"]
 
 STAGES = ("evolution", "sgd", "polish")
-CHUNK = 1 << 16  # points per evaluation in the residual/Jacobian passes: bounds memory
 
 
 @dataclass
@@ -280,61 +280,12 @@ def _residuals(prob: _Problem, x: torch.Tensor, p: torch.Tensor) -> torch.Tensor
         return prob.f(x, p)
 
 
-def _jacobian_per_point(prob: _Problem, x: torch.Tensor, p: torch.Tensor) -> torch.Tensor | None:
-    """df(x_i)/dp (N, P) in ONE reverse pass: every point gets its own copy of the parameters.
-
-    f(x_i; p_i) depends on p_i only, so the gradient of sum_i f(x_i; p_i) with respect to the
-    (N,) copy of parameter j is column j of the Jacobian.  Valid when the defining function
-    uses its parameters element-wise (scalars broadcast against x[..., k]); returns None when
-    the output shape shows otherwise.
-    """
-    n = x.shape[0]
-    copies = [p[j].detach().expand(n).clone().requires_grad_(True) for j in range(p.shape[0])]
-    values: dict[str, Any] = dict(zip(prob.free, copies))
+def _jacobian(prob: _Problem, x: torch.Tensor, p: torch.Tensor) -> torch.Tensor:
+    """df(x_i)/dp (N, P) for the free parameters: the kernel's per-point parameter derivative
+    (:func:`pyfrep_core.diff.param_grad`'s per-sample reverse mode, chunked, thread-safe)."""
+    values = dict(zip(prob.free, p.detach().unbind(0)))
     values.update(prob.fixed)
-    with torch.enable_grad():
-        y = prob.model.fn(x, **values)
-        if not isinstance(y, torch.Tensor) or y.shape != (n,) or not y.requires_grad:
-            return None
-        grads = torch.autograd.grad(y.sum(), copies, allow_unused=True)
-    return torch.stack([torch.zeros_like(y) if g is None else g for g in grads], dim=1)
-
-
-def _jacobian_forward(prob: _Problem, x: torch.Tensor, p: torch.Tensor) -> torch.Tensor:
-    """df(x_i)/dp (N, P) by forward-mode autodiff: one dual-number pass per parameter (any model)."""
-    from torch.autograd import forward_ad
-
-    cols = []
-    with warnings.catch_warnings():  # torch's first forward-mode pass scripts decompositions (deprecated API)
-        warnings.simplefilter("ignore", DeprecationWarning)
-        for j in range(p.shape[0]):
-            with forward_ad.dual_level():
-                tangent = torch.zeros_like(p)
-                tangent[j] = 1.0
-                out = prob.f(x, forward_ad.make_dual(p, tangent))
-                col = forward_ad.unpack_dual(out).tangent
-            cols.append(torch.zeros_like(out) if col is None else col)
-    return torch.stack(cols, dim=1)
-
-
-def _jacobian(prob: _Problem, x: torch.Tensor, p: torch.Tensor, state: dict) -> torch.Tensor:
-    """df(x_i)/dp (N, P) in chunks; the one-pass per-point method when it is valid for this model.
-
-    Validity is checked once: its column sums must equal the reverse-mode gradient of sum_i f(x_i; p).
-    """
-    if "per_point" not in state:
-        xc = x[:1024]
-        jac = _jacobian_per_point(prob, xc, p)
-        ok = False
-        if jac is not None:
-            with torch.enable_grad():
-                q = p.detach().clone().requires_grad_(True)
-                (g,) = torch.autograd.grad(prob.f(xc, q).sum(), q, allow_unused=True)
-            g = torch.zeros_like(q) if g is None else g
-            ok = bool(torch.allclose(jac.sum(0), g, rtol=1e-8, atol=1e-10 * (1.0 + float(g.abs().max()))))
-        state["per_point"] = ok
-    method = _jacobian_per_point if state["per_point"] else _jacobian_forward
-    return torch.cat([method(prob, x[i : i + CHUNK], p) for i in range(0, x.shape[0], CHUNK)])
+    return _param_jacobian(prob.model.fn, x, values, prob.free, label=prob.model.__name__)
 
 
 def _polish(prob: _Problem, x: torch.Tensor, u0: torch.Tensor, cfg: dict, report) -> tuple:
@@ -343,7 +294,6 @@ def _polish(prob: _Problem, x: torch.Tensor, u0: torch.Tensor, cfg: dict, report
 
     x64 = x.to(torch.float64)
     losses: list[float] = []
-    state: dict[str, Any] = {}
     p0 = np.clip(prob.to_params(u0.to(torch.float64)).cpu().numpy(), prob.lower, prob.upper)
     last: dict[str, np.ndarray] = {}
 
@@ -361,7 +311,7 @@ def _polish(prob: _Problem, x: torch.Tensor, u0: torch.Tensor, cfg: dict, report
             return r
 
         def jac(p: np.ndarray) -> np.ndarray:
-            return _jacobian(prob, x64, torch.as_tensor(p, device=x.device), state).cpu().numpy()
+            return _jacobian(prob, x64, torch.as_tensor(p, device=x.device)).cpu().numpy()
 
         stopped = False
         try:

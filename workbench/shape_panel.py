@@ -31,7 +31,7 @@ from pyfrep_core import Mesh, Model, polygonize
 from pyfrep_core.compiled import CompiledModel, warm_up
 from pyfrep_core.compiled import compiled as compile_model
 from pyfrep_core.model import check_bounds
-from pyfrep_core.sensitivity import normal_velocity, param_derivative
+from pyfrep_core.sensitivity import normal_velocity, param_derivative, velocity
 
 from ._threads import LatestWorker, MainThread
 from .view import MeshView
@@ -89,7 +89,8 @@ def symmetric_range(values: np.ndarray, percentile: float = 99.0) -> tuple[float
 
 def surface_velocity(model: Model, mesh: Mesh, name: str, params: dict[str, float]) -> np.ndarray:
     """Normal velocity -(df/dp) / |grad f| at the mesh's vertices (V,), reusing the grad f that
-    polygonize kept (``mesh.gradient``): one autograd pass (df/dp) instead of two.
+    polygonize kept (``mesh.gradient``): one pass (df/dp, by the kernel's one per-point
+    parameter derivative, :func:`pyfrep_core.sensitivity.param_derivative`) instead of two.
 
     Examples
     --------
@@ -101,9 +102,8 @@ def surface_velocity(model: Model, mesh: Mesh, name: str, params: dict[str, floa
     """
     if mesh.gradient is None:
         return normal_velocity(model, mesh.vertices, name, params)
-    length = np.linalg.norm(mesh.gradient, axis=1)
-    df_dp = param_derivative(model, mesh.vertices, name, params, chunk=1 << 14)
-    return np.where(length > 0, -df_dp / np.where(length > 0, length, 1.0), 0.0)
+    df_dp = param_derivative(model, mesh.vertices, name, params)
+    return velocity(df_dp, np.linalg.norm(mesh.gradient, axis=1))
 
 
 def _format_bounds(bounds: Any) -> str:

@@ -1,48 +1,57 @@
-"""Mean + Gaussian curvature at the vertices of the Fig. 1 part meshed at 256^3 (issue 3's benchmark).
+"""Mean + Gaussian curvature at the vertices of the Fig. 1 part meshed at 256^3, float32 and float64.
 
-The paper's code takes about 0.65 s (mean) + 0.22 s (Gaussian) = 0.87 s for this on this kind
-of machine (figures from the issue; the paper's package is not installed here).  Target: at
-least 4x faster in total (< 0.22 s), in float64, at the accuracy of ``tests/test_curvature.py``.
+Times (best of several runs, wall clock and CPU; the mesh is not timed), in one process:
 
-Implementations compared (the mesh is not timed; best of several runs, wall clock and CPU):
+- ours, separate calls: :func:`mean_curvature` then :func:`gaussian_curvature` (each one
+  evaluation of f and 3 backward passes: the gradient and two Hessian-vector products along a
+  tangent frame, in chunks spread over ``torch.get_num_threads()`` threads);
+- ours, one :func:`curvatures` call (H, K, principal curvatures and directions together);
+- variants, for the record: the full Hessian (1 + 3 passes) + the paper's formulas
+  (:func:`curvatures_from_hessian`); per-point functional derivatives ``vmap(jacrev(grad))``
+  (reverse over reverse) and ``vmap(torch.func.hessian)`` (forward over reverse: forward-mode
+  AD is process-global in torch, so run on one thread), + the paper's formulas;
+- the paper's code (fayolle/PyFRep, ``FRep.curvature.meanCurvature`` then
+  ``GaussianCurvature`` on the Fig. 1 program written with its own primitives) when
+  ``PYFREP_SRC`` names a checkout of it; otherwise a re-implementation of its algorithm
+  (H = -1/2 div(n) by a loop of backward passes with ``create_graph``, then K from a
+  separately built Hessian).
 
-- ``curvatures``: what :func:`pyfrep_core.curvature.curvatures` does: the gradient, then two
-  Hessian-vector products along a tangent frame (3 backward passes), 8192-point chunks in
-  ``torch.get_num_threads()`` threads; H, K, kmin, kmax and directions together;
-- ``hessian + formulas``: the full Hessian (gradient + 3 backward passes for its rows, same
-  chunking) and the paper's formulas (:func:`curvatures_from_hessian`);
-- ``torch.func.hessian + vmap`` and ``forward-over-reverse`` (``jvp`` of ``grad``, vmapped over
-  the 3 axes), chunked the same way, + the paper's formulas;
-- ``paper's algorithm``: a re-implementation of the paper's method (H = -1/2 div(n) by a loop
-  of backward passes with ``create_graph``, then K from a separately built Hessian) on the whole
-  vertex array, in float64 (the precision the accuracy targets need) and in the paper code's
-  default float32: a same-machine reference for the ratio.
+Targets (issue 11): 4x the paper's code with the separate calls, 8x with ``curvatures``.
+Accuracy column: H against the paper's formulas on our full Hessian in float64, 99.9th
+percentile of |dH| / (1 + |H|) over the vertices where the curvature is defined (a few dozen
+land exactly on R-function creases: NaN in ours, huge values in the paper's code).
 
-Run: ``.venv/bin/python benchmarks/curvature.py`` (PYFREP_QUICK=1: 128^3 and fewer repeats).
+Run: ``PYFREP_SRC=/path/to/PyFRep .venv/bin/python benchmarks/curvature.py``
+(PYFREP_QUICK=1: 128^3 and fewer repeats).
 """
 
 from __future__ import annotations
 
 import os
+import sys
 import time
+from collections.abc import Callable
 
 import numpy as np
 import torch
 from torch.func import grad as func_grad
 from torch.func import hessian as func_hessian
-from torch.func import jvp, vmap
+from torch.func import jacrev, vmap
 
 from pyfrep_core import polygonize
-from pyfrep_core.curvature import curvatures, curvatures_from_hessian
+from pyfrep_core.curvature import curvatures, curvatures_from_hessian, gaussian_curvature, mean_curvature
 from pyfrep_core.diff import _map_chunks, value_grad_hessian
 from pyfrep_core.models import fig1_part
 
 QUICK = os.environ.get("PYFREP_QUICK", "") not in ("", "0")
-PAPER_S = 0.65 + 0.22  # the paper's code: mean + Gaussian curvature (issue 3)
 
 
 def f(x: torch.Tensor) -> torch.Tensor:
     return fig1_part(x)
+
+
+def separate(x: torch.Tensor):
+    return mean_curvature(f, x), gaussian_curvature(f, x)
 
 
 def ours(x: torch.Tensor):
@@ -51,36 +60,33 @@ def ours(x: torch.Tensor):
 
 def full_hessian(x: torch.Tensor):
     _, g, h = value_grad_hessian(f, x)
-    return curvatures_from_hessian(g, h)
+    return curvatures_from_hessian(g, h, x)
 
 
 def _single(p: torch.Tensor) -> torch.Tensor:
-    return fig1_part.fn(p, r=0.5)
+    return f(p.unsqueeze(0)).squeeze(0)  # the model sees (1, 3) points
 
 
-def func_vmap_hessian(x: torch.Tensor):
-    def one(c):
-        return vmap(func_grad(_single))(c), vmap(func_hessian(_single))(c)
+def reverse_over_reverse(x: torch.Tensor):
+    def grad_twice(p):
+        g = func_grad(_single)(p)
+        return g, g
 
-    g, h = _map_chunks(one, x, None, parallel=False)  # torch.func transforms are not thread-safe
+    g, h = _map_chunks(lambda c: vmap(jacrev(grad_twice, has_aux=True))(c)[::-1], x, None)
     return curvatures_from_hessian(g, h)
 
 
 def forward_over_reverse(x: torch.Tensor):
-    grad_all = vmap(func_grad(_single))
-
     def one(c):
-        eye = torch.eye(3, dtype=c.dtype).unsqueeze(1).expand(3, *c.shape)
-        g, rows = vmap(lambda t: jvp(grad_all, (c,), (t,)), out_dims=(None, 1))(eye)
-        return g, rows
+        return vmap(func_grad(_single))(c), vmap(func_hessian(_single))(c)
 
-    g, h = _map_chunks(one, x, None, parallel=False)
+    g, h = _map_chunks(one, x, None, parallel=False)  # forward-mode AD levels are process-global
     return curvatures_from_hessian(g, h)
 
 
-def papers_algorithm(x: torch.Tensor, dtype: torch.dtype = torch.float32):
+def papers_algorithm(x: torch.Tensor):
     """H = -1/2 div(grad f/|grad f|) by a loop of backward passes, then K from a Hessian (paper Figs. 5-6)."""
-    vt = x.detach().to(dtype).requires_grad_(True)
+    vt = x.detach().clone().requires_grad_(True)
     ft = f(vt)
     g = torch.autograd.grad(ft, [vt], grad_outputs=torch.ones_like(ft), create_graph=True)[0]
     n = g / torch.linalg.norm(g, 2, dim=1, keepdim=True)
@@ -88,7 +94,7 @@ def papers_algorithm(x: torch.Tensor, dtype: torch.dtype = torch.float32):
     for i in range(3):
         div += torch.autograd.grad(n[..., i], vt, grad_outputs=torch.ones_like(n[..., i]), create_graph=True)[0][..., i]
     mean = (-0.5 * div).detach()
-    vt = x.detach().to(dtype).requires_grad_(True)
+    vt = x.detach().clone().requires_grad_(True)
     ft = f(vt)
     g = torch.autograd.grad(ft, [vt], grad_outputs=torch.ones_like(ft), create_graph=True)[0]
     rows = [
@@ -99,8 +105,38 @@ def papers_algorithm(x: torch.Tensor, dtype: torch.dtype = torch.float32):
     return mean, gauss
 
 
+def papers_code() -> Callable | None:
+    """meanCurvature + GaussianCurvature of the paper's code on its Fig. 1 program, or None without PYFREP_SRC."""
+    src = os.environ.get("PYFREP_SRC", "")
+    if not src:
+        return None
+    if not os.path.isfile(os.path.join(src, "FRep", "curvature.py")):
+        raise SystemExit(f"PYFREP_SRC={src!r} is not a checkout of fayolle/PyFRep (no FRep/curvature.py)")
+    sys.path.insert(0, src)
+    from FRep.curvature import GaussianCurvature, meanCurvature
+    from FRep.ops import difference, intersection
+    from FRep.primitives import block, cylX, cylY, cylZ, sphere
+
+    def fig1(p):  # the paper's Fig. 1 program, as written there
+        sp1 = sphere(p, center=(0, 0, 0), r=1)
+        b1 = block(p, vertex=(-0.75, -0.75, -0.75), dx=1.5, dy=1.5, dz=1.5)
+        t1 = intersection(sp1, b1)
+        c1 = cylX(p, center=(0, 0, 0), r=0.5)
+        c2 = cylY(p, center=(0, 0, 0), r=0.5)
+        c3 = cylZ(p, center=(0, 0, 0), r=0.5)
+        return difference(difference(difference(t1, c1), c2), c3)
+
+    def run(x: torch.Tensor):
+        v = x.numpy().astype(np.float64)  # its entry takes numpy points and a dtype
+        return torch.from_numpy(meanCurvature(fig1, v, dtype=x.dtype)), torch.from_numpy(
+            GaussianCurvature(fig1, v, dtype=x.dtype)
+        )
+
+    return run
+
+
 def best_of(fn, x, repeats: int) -> tuple[float, float, object]:
-    fn(x[:2000])  # warm-up
+    fn(x[:20000])  # warm-up
     walls, cpus, out = [], [], None
     for _ in range(repeats):
         t0, c0 = time.perf_counter(), time.process_time()
@@ -115,44 +151,60 @@ def main() -> None:
     repeats = 3 if QUICK else 7
     t0 = time.perf_counter()
     mesh = polygonize(fig1_part, resolution=resolution)
-    x = torch.as_tensor(mesh.vertices, dtype=torch.float64)
+    x64 = torch.as_tensor(mesh.vertices, dtype=torch.float64)
     print(
         f"Fig. 1 part at {resolution}^3: {mesh.n_vertices} vertices (mesh {time.perf_counter() - t0:.1f} s, "
-        f"not timed); torch {torch.__version__}, {torch.get_num_threads()} threads, {os.cpu_count()} CPUs"
+        f"not timed); torch {torch.__version__}, {torch.get_num_threads()} threads, {os.cpu_count()} CPUs; "
+        f"load average {' '.join(f'{v:.2f}' for v in os.getloadavg())}"
     )
-    ref = full_hessian(x)
-    # H against the paper's formulas on the full Hessian.  At vertices that land exactly on a
-    # crease of the R-functions (a few dozen) the curvature is "infinite" and any two methods
-    # give different huge or arbitrary values: the 99.9th percentile shows the agreement elsewhere.
-    rows = []
-    for name, fn in (
-        ("curvatures (tangent frame, 1+2 passes)", ours),
-        ("hessian (1+3 passes) + paper formulas", full_hessian),
-        ("torch.func.hessian + vmap", func_vmap_hessian),
-        ("forward-over-reverse (jvp of grad)", forward_over_reverse),
-        ("paper's algorithm (float64, div loop)", lambda x: papers_algorithm(x, torch.float64)),
-        ("paper's algorithm (float32, div loop)", papers_algorithm),
-    ):
-        wall, cpu, out = best_of(fn, x, repeats if "paper" not in name else max(2, repeats // 2))
-        H = out[0] if isinstance(out, tuple) and not hasattr(out, "H") else out.H
-        dev = (torch.abs(H.double() - ref.H) / (1 + torch.abs(ref.H))).nan_to_num(nan=float("inf"))
-        dev = float(torch.quantile(dev, 0.999))
-        rows.append((name, wall, cpu, dev))
-        print(f"  {name:<42} {wall:7.3f} s wall  {cpu:7.3f} s CPU   H vs formulas: 99.9 % within {dev:.0e}")
+    ref = full_hessian(x64).H
+    defined = torch.isfinite(ref)  # vertices on a crease have no curvature (NaN): left out of the comparison
+    paper = papers_code()
+    reference = (
+        ("paper's code (PyFRep, PYFREP_SRC)", paper)
+        if paper
+        else ("paper's algorithm, re-implemented", papers_algorithm)
+    )
+    if paper is None:
+        print("  PYFREP_SRC not set: the paper's algorithm re-implemented here stands in for its code")
     sphere_part = (np.abs(np.linalg.norm(mesh.vertices, axis=1) - 1) < 1e-9) & (np.abs(mesh.vertices).max(1) < 0.74)
-    c = ours(x)
-    err_h = float(np.abs(c.H.numpy()[sphere_part] - 1).max())
-    err_k = float(np.abs(c.K.numpy()[sphere_part] - 1).max())
-    best = rows[0][1]
-    n_sphere = int(sphere_part.sum())
-    print(f"accuracy on the {n_sphere} vertices of the sphere patches: |H - 1| {err_h:.1e}, |K - 1| {err_k:.1e}")
-    print(f"mean + Gaussian curvature: {best:.3f} s ({rows[0][2]:.3f} s CPU) for {mesh.n_vertices} vertices")
-    note = "" if resolution == 256 else f" [quick mode: the reference is for 256^3, this is {resolution}^3]"
-    print(
-        f"  vs the paper's 0.65 + 0.22 = {PAPER_S:.2f} s: {PAPER_S / best:.1f}x faster (target >= 4x, < 0.22 s){note}"
-    )
-    for name, wall, cpu, _ in rows[-2:]:
-        print(f"  vs the {name} re-run here: {wall / best:.1f}x faster (wall), {cpu / rows[0][2]:.1f}x (CPU)")
+    for dtype in (torch.float32, torch.float64):
+        x = x64.to(dtype)
+        print(f"{str(dtype).removeprefix('torch.')}:")
+        rows = {}
+        for name, fn, reps in (
+            ("ours: mean_curvature + gaussian_curvature", separate, repeats),
+            ("ours: curvatures (H, K, kmin, kmax, dirs)", ours, repeats),
+            ("hessian (1+3 passes) + paper formulas", full_hessian, max(2, repeats // 2)),
+            ("vmap(jacrev(grad)) + paper formulas", reverse_over_reverse, 2),
+            ("vmap(hessian), one thread + formulas", forward_over_reverse, 2),
+            (reference[0], reference[1], max(2, repeats // 2)),
+        ):
+            wall, cpu, out = best_of(fn, x, reps)
+            H = out[0] if isinstance(out, tuple) and not hasattr(out, "H") else out.H
+            both = defined & torch.isfinite(H)
+            dev = (torch.abs(H.double() - ref) / (1 + torch.abs(ref)))[both]
+            dev = float(torch.kthvalue(dev, max(1, int(0.999 * dev.numel())))[0])
+            rows[name] = (wall, cpu)
+            print(
+                f"  {name:<42} {wall:7.3f} s wall {cpu:7.3f} s CPU   "
+                f"H vs formulas: 99.9 % within {dev:.0e}, {int((defined & ~both).sum())} more NaN"
+            )
+        c = curvatures(f, x)
+        err_h = float(np.abs(c.H.double().numpy()[sphere_part] - 1).max())
+        err_k = float(np.abs(c.K.double().numpy()[sphere_part] - 1).max())
+        n_sphere = int(sphere_part.sum())
+        print(f"  on the {n_sphere} vertices of the sphere patches: |H - 1| {err_h:.1e}, |K - 1| {err_k:.1e}")
+        ref_wall, ref_cpu = rows[reference[0]]
+        for name, target in (
+            ("ours: mean_curvature + gaussian_curvature", 4),
+            ("ours: curvatures (H, K, kmin, kmax, dirs)", 8),
+        ):
+            wall, cpu = rows[name]
+            print(
+                f"  {name}: {ref_wall / wall:.1f}x the {reference[0]} in wall time, "
+                f"{ref_cpu / cpu:.1f}x in CPU time (target {target}x)"
+            )
 
 
 if __name__ == "__main__":

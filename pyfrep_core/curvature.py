@@ -22,7 +22,12 @@ The fast path (:func:`curvatures` and the single-quantity functions) needs only 
 2 Hessian-vector products after the gradient, i.e. 3 backward passes for everything, all
 quantities from ONE evaluation of f (:func:`pyfrep_core.diff.tangent_hessian`).
 :func:`curvatures_from_hessian` applies the paper's formulas to a full Hessian; the tests
-check that both agree.
+check that both agree.  Each entry computes only the fields it returns (no eigenvectors for
+:func:`gaussian_curvature`).  These are plain reverse passes over chunks of points, which
+threads may run at once; per-point ``torch.func`` transforms were measured slower on the Fig. 1
+part (``benchmarks/curvature.py``): ``vmap(jacrev(grad))`` about 1.5x the CPU time and
+``vmap(hessian)`` (forward mode, which must also stay on one thread: its AD levels are
+process-global in torch) 2-3x.
 
 Undefined curvature.  The curvatures of the level set through x exist only where f is twice
 differentiable with grad f != 0.  They do not at a critical point (grad f = 0: a sphere's or a
@@ -102,36 +107,53 @@ def _shape_operator(g: torch.Tensor, th: torch.Tensor, x: torch.Tensor | None) -
 
 
 def _from_shape_operator(
-    g: torch.Tensor, frame: torch.Tensor, th: torch.Tensor, x: torch.Tensor | None = None
-) -> Curvatures:
-    """Curvatures from the tangent Hessian ``th = T Hf T^T`` (N, 2, 2), the gradient (N, 3) and the points."""
+    g: torch.Tensor,
+    frame: torch.Tensor,
+    th: torch.Tensor,
+    x: torch.Tensor | None = None,
+    fields: tuple[str, ...] = Curvatures._fields,
+) -> tuple[torch.Tensor, ...]:
+    """The ``fields`` of :class:`Curvatures` (in that order) from the tangent Hessian ``th = T Hf T^T``.
+
+    ``th`` (N, 2, 2), the gradient (N, 3), the frame T (N, 2, 3) and the points; a call computes
+    only what its fields need (the directions' trigonometry only for ``dmin``/``dmax``).
+    """
     s, defined = _shape_operator(g, th, x)
     undefined = ~defined
     s = torch.where(undefined[:, None, None], torch.zeros_like(s), s)  # no inf/NaN in the arithmetic below
     a, b, c = s[:, 0, 0], s[:, 0, 1], s[:, 1, 1]
-    mean = 0.5 * (a + c)
-    radius = torch.hypot(0.5 * (a - c), b)  # sqrt(H^2 - K) without cancellation, >= 0
-    kmin, kmax = mean - radius, mean + radius
-    gauss = a * c - b * b
-    # the eigenvector of kmax in the frame is (cos t, sin t) with tan 2t = 2b / (a - c)
-    angle = 0.5 * torch.atan2(2.0 * b, a - c)
-    cos, sin = torch.cos(angle)[:, None], torch.sin(angle)[:, None]
-    dmax = cos * frame[:, 0] + sin * frame[:, 1]
-    dmin = -sin * frame[:, 0] + cos * frame[:, 1]
-    nan = torch.full_like(mean, float("nan"))
-    values = [torch.where(undefined, nan, v) for v in (mean, gauss, kmin, kmax)]
-    dirs = [torch.where(undefined[:, None], nan[:, None], d) for d in (dmin, dmax)]
-    return Curvatures(*values, *dirs, defined)
+    nan = torch.full_like(a, float("nan"))
+    out = {"defined": defined}
+    if {"H", "kmin", "kmax"} & set(fields):
+        out["H"] = 0.5 * (a + c)
+    if "K" in fields:
+        out["K"] = a * c - b * b
+    if {"kmin", "kmax"} & set(fields):
+        radius = torch.hypot(0.5 * (a - c), b)  # sqrt(H^2 - K) without cancellation, >= 0
+        out["kmin"], out["kmax"] = out["H"] - radius, out["H"] + radius
+    if {"dmin", "dmax"} & set(fields):
+        # the eigenvector of kmax in the frame is (cos t, sin t) with tan 2t = 2b / (a - c)
+        angle = 0.5 * torch.atan2(2.0 * b, a - c)
+        cos, sin = torch.cos(angle)[:, None], torch.sin(angle)[:, None]
+        out["dmax"] = torch.where(undefined[:, None], nan[:, None], cos * frame[:, 0] + sin * frame[:, 1])
+        out["dmin"] = torch.where(undefined[:, None], nan[:, None], -sin * frame[:, 0] + cos * frame[:, 1])
+    for name in ("H", "K", "kmin", "kmax"):
+        if name in out:
+            out[name] = torch.where(undefined, nan, out[name])
+    return tuple(out[name] for name in fields)
 
 
-def _curvatures(f: Callable, x: Any, create_graph: bool, chunk: int | None) -> tuple[Curvatures, bool, tuple]:
+def _curvatures(
+    f: Callable, x: Any, create_graph: bool, chunk: int | None, fields: tuple[str, ...] = Curvatures._fields
+) -> tuple[tuple, bool, tuple]:
+    """The ``fields`` of :class:`Curvatures` at x, chunk by chunk: one evaluation of f and 3 backward passes."""
     t, was_numpy, batch = _points(x, dims=3)
 
-    def one(c: torch.Tensor) -> Curvatures:
+    def one(c: torch.Tensor) -> tuple[torch.Tensor, ...]:
         _, g, frame, th = _tangent_hessian(f, c, create_graph)
-        return _from_shape_operator(g, frame, th, c)
+        return _from_shape_operator(g, frame, th, c, fields)
 
-    out = one(t) if create_graph else Curvatures(*_map_chunks(one, t, chunk))
+    out = one(t) if create_graph else _map_chunks(one, t, chunk)
     return out, was_numpy, batch
 
 
@@ -168,7 +190,7 @@ def curvatures(f: Callable, x: Any, create_graph: bool = False, chunk: int | Non
     (array([False,  True]), array([nan, 0.5]))
     """
     out, was_numpy, batch = _curvatures(f, x, create_graph, chunk)
-    return _out(out, was_numpy, batch)
+    return _out(Curvatures(*out), was_numpy, batch)
 
 
 @named_entry
@@ -212,8 +234,8 @@ def gaussian_curvature(f: Callable, x: Any, create_graph: bool = False, chunk: i
     >>> gaussian_curvature(lambda p: sphere(p, r=0.5), np.array([[0.0, 0.5, 0.0]]))
     array([4.])
     """
-    out, was_numpy, batch = _curvatures(f, x, create_graph, chunk)
-    return _out(out.K, was_numpy, batch)
+    (gauss,), was_numpy, batch = _curvatures(f, x, create_graph, chunk, ("K",))
+    return _out(gauss, was_numpy, batch)
 
 
 @named_entry
@@ -229,8 +251,8 @@ def principal_curvatures(f: Callable, x: Any, create_graph: bool = False, chunk:
     >>> principal_curvatures(lambda p: cylX(p, r=0.25), np.array([[1.0, 0.0, 0.25]]))
     (array([0.]), array([4.]))
     """
-    out, was_numpy, batch = _curvatures(f, x, create_graph, chunk)
-    return _out((out.kmin, out.kmax), was_numpy, batch)
+    out, was_numpy, batch = _curvatures(f, x, create_graph, chunk, ("kmin", "kmax"))
+    return _out(out, was_numpy, batch)
 
 
 @named_entry
@@ -250,8 +272,8 @@ def principal_directions(f: Callable, x: Any, create_graph: bool = False, chunk:
     >>> np.abs(dmin).round(12), np.abs(dmax).round(12)
     (array([[0., 0., 1.]]), array([[0., 1., 0.]]))
     """
-    out, was_numpy, batch = _curvatures(f, x, create_graph, chunk)
-    return _out((out.dmin, out.dmax), was_numpy, batch)
+    out, was_numpy, batch = _curvatures(f, x, create_graph, chunk, ("dmin", "dmax"))
+    return _out(out, was_numpy, batch)
 
 
 @named_entry
@@ -290,10 +312,10 @@ def curvatures_from_hessian(g: Any, hess: Any, x: Any = None) -> Curvatures:
     root = torch.sqrt(torch.clamp(mean * mean - gauss, min=0.0))
     frame = tangent_frame(gt / safe[:, None])
     th = torch.einsum("nai,nij,nbj->nab", frame, ht, frame)
-    dirs = _from_shape_operator(gt, frame, th, xt)
+    dmin, dmax, defined = _from_shape_operator(gt, frame, th, xt, ("dmin", "dmax", "defined"))
     nan = torch.full_like(mean, float("nan"))
-    values = [torch.where(dirs.defined, v, nan) for v in (mean, gauss, mean - root, mean + root)]
-    out = Curvatures(*values, dirs.dmin, dirs.dmax, dirs.defined)
+    values = [torch.where(defined, v, nan) for v in (mean, gauss, mean - root, mean + root)]
+    out = Curvatures(*values, dmin, dmax, defined)
     return _out(out, was_numpy)
 
 

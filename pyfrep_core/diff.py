@@ -13,7 +13,8 @@ Conventions shared by every function here:
   float64 both work.  Points with NaN or inf raise ValueError.
 - ``create_graph=True`` keeps the autograd graph so the result can enter a loss (then the
   points are processed in one piece).  Otherwise points are processed in chunks: on the CPU
-  chunks of 8192 points, whose temporaries stay in cache, spread over ``torch.get_num_threads()``
+  chunks whose (N, 3) temporaries take 192 KiB (8192 points in float64, 16384 in float32) and
+  stay in cache, spread over ``torch.get_num_threads()``
   threads (autograd releases the GIL), which is 1.5-2x faster than one big batch even on one
   thread (measured by ``benchmarks/curvature.py``); on other devices chunks of 2^18 points.
 - Points are independent, so one backward pass gives a derivative at all points at once:
@@ -56,7 +57,7 @@ __all__ = [
 ]
 
 CHUNK = 1 << 18  # points per autograd pass on accelerators: bounds memory
-CPU_CHUNK = 8192  # points per autograd pass on the CPU: the temporaries of a pass stay in cache
+CPU_CHUNK_BYTES = 8192 * 3 * 8  # an (N, 3) temporary of a pass on the CPU: the temporaries stay in cache
 
 _pool: ThreadPoolExecutor | None = None
 _pool_lock = threading.Lock()
@@ -77,7 +78,7 @@ def _workers() -> ThreadPoolExecutor:
 
 def _chunk_size(x: torch.Tensor, chunk: int | None) -> int:
     if chunk is None:
-        return CPU_CHUNK if x.device.type == "cpu" else CHUNK
+        return CPU_CHUNK_BYTES // (3 * x.element_size()) if x.device.type == "cpu" else CHUNK
     if isinstance(chunk, bool) or not isinstance(chunk, int) or chunk < 1:
         raise ValueError(f"chunk must be a positive integer, got {chunk!r}")
     return chunk
@@ -203,7 +204,7 @@ def value_and_grad(f: Callable, x: Any, create_graph: bool = False, chunk: int |
     f : callable, (N, d) -> (N,)
     x : (N, d) points, numpy or torch, float32 or float64, any device.
     create_graph : keep the graph (for use inside a loss); then no chunking is done.
-    chunk : points per pass; default 8192 on the CPU (in parallel threads), 2^18 elsewhere.
+    chunk : points per pass; default on the CPU 8192 in float64, 16384 in float32 (in parallel threads); 2^18 elsewhere.
 
     Returns
     -------

@@ -1,6 +1,7 @@
 """Curvatures at projected mesh vertices against closed forms (float64), Schwarz D, edge cases."""
 
 import os
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import pytest
@@ -273,3 +274,86 @@ def test_attach_curvatures_writes_point_data_that_survives_a_file(tmp_path):
     back = load_mesh(path)
     np.testing.assert_allclose(back.point_data["mean_curvature"], H, rtol=1e-12)
     np.testing.assert_allclose(back.point_data["gaussian_curvature"], mesh.point_data["gaussian_curvature"])
+
+
+# closed forms of the level set through each point (not only of the surface): points rounded to
+# float32 lie off f = 0, and their curvature is that of the level set through them
+def _sphere_forms(v, center=(0.1, -0.2, 0.05)):
+    rho = np.linalg.norm(v - np.asarray(center), axis=1)
+    return 1 / rho, 1 / rho**2, 1 / rho, 1 / rho
+
+
+def _ellipsoid_forms(v, a=1.0, b=0.7, c=0.5):
+    x, y, z = v.T
+    s = np.sqrt(x**2 / a**2 + y**2 / b**2 + z**2 / c**2)  # the level set is the ellipsoid of semi-axes s (a, b, c)
+    A, B, C = s * a, s * b, s * c
+    h2 = x**2 / A**4 + y**2 / B**4 + z**2 / C**4
+    K = 1 / (A**2 * B**2 * C**2 * h2**2)
+    H = (A**2 + B**2 + C**2 - (x * x + y * y + z * z)) / (2 * A**2 * B**2 * C**2 * h2**1.5)
+    root = np.sqrt(np.maximum(H * H - K, 0))
+    return H, K, H - root, H + root
+
+
+def _torus_forms(v, R=1.0):
+    rho = np.hypot(v[:, 0], v[:, 1])
+    tube = np.hypot(rho - R, v[:, 2])  # the level set is the torus of tube radius |(rho - R, z)|
+    cos_v = (rho - R) / tube
+    return (R + 2 * tube * cos_v) / (2 * tube * rho), cos_v / (tube * rho), cos_v / rho, 1 / tube
+
+
+CLOSED_FORMS = {
+    "sphere": (lambda p: sphere(p, center=(0.1, -0.2, 0.05), r=0.8), ((-1, -1.1, -1), (1.1, 1, 1)), _sphere_forms),
+    "ellipsoid": (lambda p: ellipsoid(p, a=1.0, b=0.7, c=0.5), ((-1.1, -0.8, -0.6), (1.1, 0.8, 0.6)), _ellipsoid_forms),
+    "torus": (lambda p: torusZ(p, R=1.0, r=0.35), ((-1.5, -1.5, -0.5), (1.5, 1.5, 0.5)), _torus_forms),
+}
+
+
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
+@pytest.mark.parametrize("name", list(CLOSED_FORMS))
+def test_closed_forms_in_each_dtype(name, dtype):
+    f, bounds, forms = CLOSED_FORMS[name]
+    x = torch.as_tensor(on_surface(f, bounds).vertices).to(dtype)
+    xv = x.double().numpy()  # the points as computed on (exact in float64)
+    H, K, kmin, kmax = forms(xv)
+    scale = np.maximum(np.abs(kmin), np.abs(kmax))  # errors relative to the largest curvature (K may be 0)
+    if dtype == torch.float64:
+        tol = np.full(len(xv), 1e-10)
+    else:
+        # rounding: the entries of the shape operator come from Hf / |g| computed with a few dozen
+        # roundings each, so its error is ~ eps ||Hf|| / |g|; relative to the curvature that is eps
+        # times cond = ||Hf|| / (|g| max|k|) (1 for spheres and tori, 2 for this ellipsoid).  16 eps
+        # cond bounds it (measured: at most 4 eps cond)
+        _, g, h = value_grad_hessian(f, xv)
+        cond = np.linalg.norm(h, 2, axis=(1, 2)) / (np.linalg.norm(g, axis=1) * scale)
+        tol = 16 * torch.finfo(dtype).eps * cond
+    c = curvatures(f, x)
+    assert c.H.dtype == dtype and bool(c.defined.all())
+    for got, want, power in ((c.H, H, 1), (c.K, K, 2), (c.kmin, kmin, 1), (c.kmax, kmax, 1)):
+        err = np.abs(got.double().numpy() - want) / scale**power
+        assert (err < tol).all(), (name, float((err / tol).max()))
+    # the single-quantity entries are the same computation, to the bit
+    torch.testing.assert_close(mean_curvature(f, x), c.H, rtol=0, atol=0)
+    torch.testing.assert_close(gaussian_curvature(f, x), c.K, rtol=0, atol=0)
+
+
+def test_curvature_from_threads_equals_serial():
+    # 4 threads x 10 calls each, chunks small enough that every call spreads over the worker pool
+    rng = np.random.default_rng(3)
+    x = torch.as_tensor(rng.uniform(-1, 1, size=(3000, 3)))
+    calls = {
+        "curvatures": lambda: tuple(curvatures(fig1_part, x, chunk=256)),
+        "mean_curvature": lambda: (mean_curvature(fig1_part, x, chunk=256),),
+        "gaussian_curvature": lambda: (gaussian_curvature(fig1_part, x, chunk=256),),
+    }
+    serial = {name: call() for name, call in calls.items()}
+    names = list(calls) + ["curvatures"]  # one per thread
+
+    def worker(name):
+        return [calls[name]() for _ in range(10)]
+
+    with ThreadPoolExecutor(4) as pool:
+        results = list(pool.map(worker, names))
+    for name, outs in zip(names, results):
+        for out in outs:
+            for got, want in zip(out, serial[name], strict=True):
+                torch.testing.assert_close(got, want, rtol=0, atol=0, equal_nan=True)

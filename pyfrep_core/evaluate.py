@@ -38,7 +38,9 @@ torch.Size([4, 5, 6])
 
 from __future__ import annotations
 
+import math
 import threading
+import time
 import warnings
 import weakref
 from collections.abc import Callable, Mapping
@@ -55,6 +57,9 @@ WORK_VALUES = 128  # live intermediate values per point in one call of a model (
 MAX_CALL_BYTES = 1 << 30  # at most this much working set per call, however much memory is free
 MEMORY_FRACTION = 8  # a call uses at most 1/8 of the memory available now
 UNKNOWN_BUDGET = 256 << 20  # the budget where the available memory cannot be read
+BUDGET_REFRESH = 1.0  # seconds a reading of the available memory is used for
+
+_budget: tuple[float, Any, int] = (-math.inf, None, UNKNOWN_BUDGET)  # (read at, reader, bytes)
 
 _no_vmap: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # fn -> why vmap cannot run it
 _no_vmap_lock = threading.Lock()
@@ -81,15 +86,21 @@ def call_budget() -> int:
     """Bytes one call of a model may use for its working set (see the module docstring).
 
     An eighth of the memory available now, at most ``MAX_CALL_BYTES`` (1 GiB); 256 MiB where
-    the available memory cannot be read.
+    the available memory cannot be read.  The figure is read at most once every
+    ``BUDGET_REFRESH`` seconds (reading it costs about 50 us, a small model call less).
 
     >>> 0 < call_budget() <= MAX_CALL_BYTES
     True
     """
-    have = _array.available_memory()
-    if have is None:
-        return UNKNOWN_BUDGET
-    return max(1 << 20, min(MAX_CALL_BYTES, have // MEMORY_FRACTION))
+    global _budget
+    now = time.monotonic()
+    read_at, patched, value = _budget
+    # re-read when stale, or at once when the reader was replaced (a test fixing the memory)
+    if now - read_at > BUDGET_REFRESH or patched is not _array.available_memory:
+        have = _array.available_memory()
+        value = UNKNOWN_BUDGET if have is None else max(1 << 20, min(MAX_CALL_BYTES, have // MEMORY_FRACTION))
+        _budget = (now, _array.available_memory, value)
+    return value
 
 
 def budget_points(dtype: torch.dtype, dim: int, sets: int = 1, budget: int | None = None) -> int:
@@ -103,7 +114,7 @@ def budget_points(dtype: torch.dtype, dim: int, sets: int = 1, budget: int | Non
     1
     """
     budget = call_budget() if budget is None else budget
-    itemsize = torch.empty((), dtype=dtype).element_size()
+    itemsize = dtype.itemsize
     return max(1, budget // ((dim + WORK_VALUES) * itemsize * max(1, sets)))
 
 

@@ -219,6 +219,13 @@ def call_sets(
     ``if`` on a value, in-place writes ...), the sets are evaluated one after the other, with
     one RuntimeWarning per model naming it and the reason; later calls loop at once.
 
+    The primitives' parameter checks cannot read values under vmap.  A set whose values are not
+    finite is run again alone, so a degenerate parameter that makes them so raises the
+    primitive's own error (``ellipsoid: a must be positive``); one that leaves them finite (a
+    negative radius that is squared) passes, as under any torch.func transform: the declared
+    ranges (:meth:`pyfrep_core.model.Model.check`, applied by fit, sampling and the workbench)
+    are the guard there.
+
     Examples
     --------
     >>> import torch
@@ -233,7 +240,8 @@ def call_sets(
     values = list(batched.values())
     sets = int(values[0].shape[0])
     n = x.shape[0]
-    size = n if tracing(x, *values) else budget_points(x.dtype, x.shape[-1], sets)
+    traced = tracing(x, *values)
+    size = n if traced else budget_points(x.dtype, x.shape[-1], sets)
     parts = []
     for start in range(0, n, size) if n > size else (0,):
         part = x[start : start + size] if n > size else x
@@ -250,14 +258,33 @@ def call_sets(
         if _weakrefable(fn) and fn in _no_vmap:
             parts.append(loop())
             continue
+        refused = None
         try:
-            parts.append(torch.func.vmap(one, in_dims=(0,) * len(values))(*values))
+            out = torch.func.vmap(one, in_dims=(0,) * len(values))(*values)
         except ModelOutputError:
             raise
         except Exception as error:  # noqa: BLE001  (whatever vmap refuses: the loop decides)
-            parts.append(loop())  # a genuine error of the model raises here
-            _remember(fn, label, f"{type(error).__name__}: {str(error).splitlines()[0] if str(error) else ''}")
+            refused = f"{type(error).__name__}: {str(error).splitlines()[0] if str(error) else ''}"
+        if refused is not None:
+            parts.append(loop())  # a genuine error of the model raises here, on its own
+            _remember(fn, label, refused)
+            continue
+        if not traced:
+            _recheck_nonfinite(one, values, out)
+        parts.append(out)
     return parts[0] if len(parts) == 1 else torch.cat(parts, dim=1)
+
+
+def _recheck_nonfinite(one: Callable, values: list[torch.Tensor], out: torch.Tensor) -> None:
+    """Under vmap the primitives' parameter checks are skipped (values cannot be read while
+    tracing): where a set gave a non-finite value, run that set alone, so that a degenerate
+    parameter raises the primitive's own error (``sphere: r must be positive``) instead of
+    passing on silently.  One reduction over the values; nothing is re-run when all are finite."""
+    if out.numel() == 0 or all(math.isfinite(v) for v in torch.stack(torch.aminmax(out.detach())).tolist()):
+        return
+    bad = int(torch.nonzero(~torch.isfinite(out.detach()))[0, 0])
+    with torch.no_grad():
+        one(*(v[bad].detach() for v in values))
 
 
 def _weakrefable(fn: Any) -> bool:

@@ -27,6 +27,7 @@ from pyfrep_core import (
     _array,
     block,
     curvatures,
+    ellipsoid,
     fit,
     grad,
     hessian,
@@ -242,6 +243,18 @@ def test_wrong_output_shape_names_the_model_and_both_shapes():
 
     with pytest.raises(ValueError, match=r"^summed: .*per parameter set \(of 2\).*shape \(5, 3\).*shape \(\)"):
         summed(torch.zeros(5, 3), r=torch.tensor([0.6, 0.7]))
+
+
+def test_a_degenerate_parameter_in_a_set_is_named_not_a_silent_nan():
+    @model(bounds=BOX, a=Param(1.0, 0.5, 1.1))
+    def egg(p, a):
+        return ellipsoid(p, a=a, b=1.0, c=0.8)
+
+    x = torch.rand(6, 3, dtype=F64, generator=torch.Generator().manual_seed(4))
+    good = egg(x, a=torch.tensor([0.6, 1.0], dtype=F64))
+    torch.testing.assert_close(good[1], ellipsoid(x, a=1.0, b=1.0, c=0.8), rtol=0, atol=1e-15)
+    with pytest.raises(ValueError, match=r"^egg: ellipsoid: a must be positive, got 0\.0"):
+        egg(x, a=torch.tensor([0.6, 0.0], dtype=F64))  # a = 0 divides by zero: the set is re-run alone
 
 
 def test_calls_are_chunked_within_the_budget(monkeypatch):

@@ -443,7 +443,6 @@ def div(v: Callable, x: Any, create_graph: bool = False, chunk: int | None = Non
 
 # ----------------------------------------------------------------------------- shape parameters
 
-
 PARAM_CPU_CHUNK = 1 << 15  # points per per-sample pass on the CPU: 1.4x faster than 8192 (vmap's per-call cost)
 PARAM_POINT_BYTES = 16 << 10  # bytes one point may take in a per-sample pass (its share of the model's graph)
 PARAM_MEMORY_SHARE = 8  # a pass uses at most 1/8 of the available memory
@@ -579,6 +578,7 @@ def _param_jacobian(
         return out
     (out,) = _map_chunks(chunk_fn, x, _param_chunk(x, chunk))
     return out
+
 
 @named_entry
 def param_grad(

@@ -40,6 +40,7 @@ import torch
 
 from ._array import as_tensor, check_finite, check_memory, check_option, check_points, named_entry, validated_inputs
 from .compiled import first_order
+from .evaluate import call, call_budget, name_of
 
 __all__ = [
     "value_and_grad",
@@ -139,14 +140,6 @@ def _leaf(x: torch.Tensor, create_graph: bool) -> torch.Tensor:
     return x if (create_graph and x.requires_grad) else x.detach().requires_grad_(True)
 
 
-def _evaluate(f: Callable, xr: torch.Tensor) -> torch.Tensor:
-    y = f(xr)
-    if not isinstance(y, torch.Tensor) or y.shape != xr.shape[:-1]:
-        shape = tuple(y.shape) if isinstance(y, torch.Tensor) else type(y).__name__
-        raise ValueError(f"f must map points {tuple(xr.shape)} to values {tuple(xr.shape[:-1])}, got {shape}")
-    return y
-
-
 def _vjp(
     y: torch.Tensor,
     xr: torch.Tensor,
@@ -176,7 +169,7 @@ def _derivatives(f: Callable, x: torch.Tensor, order: int, create_graph: bool) -
     with torch.enable_grad():
         xr = _leaf(x, create_graph)
         with once:
-            y = _evaluate(f, xr)
+            y = call(f, xr, label=name_of(f))
         last = order == 1 and not create_graph  # the only pass: nothing needs the graph after it
         g = _vjp(y, xr, create_graph=create_graph or order > 1, retain_graph=not last)
         if order == 1:
@@ -361,7 +354,7 @@ def _tangent_hessian(f: Callable, x: torch.Tensor, create_graph: bool) -> tuple[
     """f, grad f, a tangent frame T (N, d-1, d) and T Hf T^T (N, d-1, d-1): 1 + (d-1) backward passes."""
     with torch.enable_grad():
         xr = _leaf(x, create_graph)
-        y = _evaluate(f, xr)
+        y = call(f, xr, label=name_of(f))
         g = _vjp(y, xr, create_graph=True)
         # the frame follows x inside a kept graph, so curvature derivatives see the turning normal
         gn = g if create_graph else g.detach()
@@ -445,28 +438,19 @@ def div(v: Callable, x: Any, create_graph: bool = False, chunk: int | None = Non
 
 PARAM_CPU_CHUNK = 1 << 15  # points per per-sample pass on the CPU: 1.4x faster than 8192 (vmap's per-call cost)
 PARAM_POINT_BYTES = 16 << 10  # bytes one point may take in a per-sample pass (its share of the model's graph)
-PARAM_MEMORY_SHARE = 8  # a pass uses at most 1/8 of the available memory
 
 
 def _param_chunk(x: torch.Tensor, chunk: int | None) -> int:
     """Points per per-sample pass: ``chunk`` if given, else the default chunk capped by the memory budget.
 
-    The budget is 1/8 of :func:`pyfrep_core.mesh.available_memory` (of the device's free memory
-    on an accelerator), at ``PARAM_POINT_BYTES`` a point: a chunk's working set is O(chunk x P)
-    plus its share of the model's graph, never O(N^2).
+    The budget is the kernel's one call budget (:func:`pyfrep_core.evaluate.call_budget`, on the
+    points' device) at ``PARAM_POINT_BYTES`` a point: a chunk's working set is O(chunk x P) plus
+    its share of the model's graph, never O(N^2).
     """
     if chunk is not None:
         return _chunk_size(x, chunk)
     size = PARAM_CPU_CHUNK if x.device.type == "cpu" else CHUNK
-    if x.device.type == "cuda":
-        have: int | None = int(torch.cuda.mem_get_info(x.device)[0])
-    else:
-        from .mesh import available_memory  # the kernel's one memory budget
-
-        have = available_memory()
-    if have is not None:
-        size = max(64, min(size, have // (PARAM_MEMORY_SHARE * PARAM_POINT_BYTES)))
-    return size
+    return max(64, min(size, call_budget(x.device) // PARAM_POINT_BYTES))
 
 
 _fallback_warned: set[str] = set()
@@ -533,10 +517,7 @@ def _param_jacobian(
         del fixed[name]
 
     def f_one_point(xi: torch.Tensor, *pv: torch.Tensor) -> torch.Tensor:
-        y = fn(xi.unsqueeze(0), **fixed, **dict(zip(names, pv)))
-        if not isinstance(y, torch.Tensor) or y.shape != (1,):
-            shape = tuple(y.shape) if isinstance(y, torch.Tensor) else type(y).__name__
-            raise ValueError(f"{label} must map points (1, {xi.shape[-1]}) to values (1,), got {shape}")
+        y = call(fn, xi.unsqueeze(0), {**fixed, **dict(zip(names, pv))}, label=label)
         return y.reshape(()).to(xi.dtype)
 
     per_sample = torch.func.vmap(f_one_point)

@@ -82,17 +82,21 @@ def name_of(fn: Any) -> str:
     return getattr(fn, "__name__", None) or repr(fn)
 
 
-def call_budget() -> int:
+def call_budget(device: Any = None) -> int:
     """Bytes one call of a model may use for its working set (see the module docstring).
 
     An eighth of the memory available now, at most ``MAX_CALL_BYTES`` (1 GiB); 256 MiB where
-    the available memory cannot be read.  The figure is read at most once every
-    ``BUDGET_REFRESH`` seconds (reading it costs about 50 us, a small model call less).
+    the available memory cannot be read.  For a CUDA ``device`` that is the device's free memory;
+    otherwise the host's, read at most once every ``BUDGET_REFRESH`` seconds (reading it costs
+    about 50 us, a small model call less).
 
     >>> 0 < call_budget() <= MAX_CALL_BYTES
     True
     """
     global _budget
+    if device is not None and torch.device(device).type == "cuda":
+        have = int(torch.cuda.mem_get_info(torch.device(device))[0])
+        return max(1 << 20, min(MAX_CALL_BYTES, have // MEMORY_FRACTION))
     now = time.monotonic()
     read_at, patched, value = _budget
     # re-read when stale, or at once when the reader was replaced (a test fixing the memory)

@@ -40,14 +40,15 @@ import numpy as np
 import torch
 
 from ._array import check_memory, named_entry
-from .diff import _chunk_size, _evaluate, _leaf, _map_chunks, _out, _points, _vjp
+from .diff import _chunk_size, _leaf, _map_chunks, _out, _points, _vjp
+from .evaluate import call, name_of
 
 __all__ = ["omega_1", "omega_k", "delta_1", "normal_derivative", "normalized", "Normalized"]
 
 
 def _field(f: Callable, xr: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """f, grad f (graph kept) and the unit normal n = grad f / |grad f| (NaN where grad f = 0)."""
-    fx = _evaluate(f, xr)
+    fx = call(f, xr, label=name_of(f))
     g = _vjp(fx, xr, create_graph=True)
     norm = torch.linalg.vector_norm(g, dim=-1, keepdim=True)
     n = g / torch.where(norm > 0, norm, torch.full_like(norm, math.nan))
@@ -217,7 +218,7 @@ def normal_derivative(
 
     def kernel(xr: torch.Tensor) -> torch.Tensor:
         _, _, n = _field(f, xr)
-        value = _evaluate(u, xr)
+        value = call(u, xr, label=name_of(u))
         for _ in range(order):
             value = _along(value, n, xr)
         return value

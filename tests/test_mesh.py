@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from pyfrep_core import Mesh, Param, model, polygonize, sphere
+from pyfrep_core import Mesh, Param, grad, model, polygonize, sphere
 from pyfrep_core.diff import value_and_grad
 from pyfrep_core.mesh import GridTooLargeError, evaluate_grid, grid_axes, grid_memory
 from pyfrep_core.models import fig1_part
@@ -209,6 +209,8 @@ def test_nan_from_f_names_the_point():
 def test_f_with_wrong_output_shape():
     with pytest.raises(ValueError, match="must map points"):
         polygonize(lambda x: x, BOX, 8)
+    with pytest.raises(ValueError, match="must map points"):
+        grad(lambda x: x, np.zeros((2, 3)))
     with pytest.raises(ValueError, match="must map points"):
         polygonize(lambda x: fig1_part(x, r=torch.tensor([0.3, 0.4])), BOX, 8)  # a batch of 2 parameter sets
 

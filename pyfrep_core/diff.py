@@ -40,7 +40,7 @@ import torch
 
 from ._array import as_tensor, check_finite, check_memory, check_option, check_points, named_entry, validated_inputs
 from .compiled import first_order
-from .evaluate import call, call_budget, name_of
+from .evaluate import call, call_budget, name_of, remember_refusal, vmap_refused
 
 __all__ = [
     "value_and_grad",
@@ -453,10 +453,6 @@ def _param_chunk(x: torch.Tensor, chunk: int | None) -> int:
     return max(64, min(size, call_budget(x.device) // PARAM_POINT_BYTES))
 
 
-_fallback_warned: set[str] = set()
-_fallback_lock = threading.Lock()
-
-
 def _param_jacobian(
     fn: Callable,
     x: torch.Tensor,
@@ -537,21 +533,14 @@ def _param_jacobian(
 
     def chunk_fn(xc: torch.Tensor) -> tuple[torch.Tensor]:
         xin = xc if create_graph else xc.detach()
-        try:
-            jac = jacobian(xin, True)
-        except RuntimeError as err:  # vmap cannot run this model: per point, with one warning
-            reason = str(err).splitlines()[0] if str(err) else type(err).__name__
-            with _fallback_lock:
-                first = label not in _fallback_warned
-                _fallback_warned.add(label)
-            if first:
-                warnings.warn(
-                    f"{label}: torch.func.vmap cannot run this model ({reason}); "
-                    "parameter derivatives are taken one point at a time (slow)",
-                    RuntimeWarning,
-                    stacklevel=2,
-                )
+        if vmap_refused(fn):
             jac = jacobian(xin, False)
+        else:
+            try:
+                jac = jacobian(xin, True)
+            except RuntimeError as err:  # vmap cannot run this model: per point, with one warning per model
+                remember_refusal(fn, label, str(err).splitlines()[0] if str(err) else type(err).__name__)
+                jac = jacobian(xin, False)
         return (jac if create_graph else jac.detach(),)
 
     if create_graph:

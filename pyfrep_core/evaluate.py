@@ -51,7 +51,7 @@ import torch
 from . import _array
 from ._array import tracing
 
-__all__ = ["evaluate", "call", "call_sets", "call_budget", "budget_points"]
+__all__ = ["evaluate", "call", "call_sets", "call_budget", "budget_points", "vmap_refused", "remember_refusal"]
 
 WORK_VALUES = 128  # live intermediate values per point in one call of a model (about 100 operations)
 MAX_CALL_BYTES = 1 << 30  # at most this much working set per call, however much memory is free
@@ -259,7 +259,7 @@ def call_sets(
         def loop() -> torch.Tensor:
             return torch.stack([one(*(v[b] for v in values)) for b in range(sets)])
 
-        if _weakrefable(fn) and fn in _no_vmap:
+        if vmap_refused(fn):
             parts.append(loop())
             continue
         refused = None
@@ -271,7 +271,7 @@ def call_sets(
             refused = f"{type(error).__name__}: {str(error).splitlines()[0] if str(error) else ''}"
         if refused is not None:
             parts.append(loop())  # a genuine error of the model raises here, on its own
-            _remember(fn, label, refused)
+            remember_refusal(fn, label, refused)
             continue
         if not traced:
             _recheck_nonfinite(one, values, out)
@@ -299,16 +299,25 @@ def _weakrefable(fn: Any) -> bool:
     return True
 
 
-def _remember(fn: Any, label: str, reason: str) -> None:
-    """Note (once per model, thread-safe) that vmap cannot run ``fn``, and warn."""
+def vmap_refused(fn: Any) -> bool:
+    """Whether ``torch.func.vmap`` is known not to run ``fn`` (a refusal noted by :func:`remember_refusal`)."""
+    return _weakrefable(fn) and fn in _no_vmap
+
+
+def remember_refusal(fn: Any, label: str, reason: str) -> None:
+    """Note (once per model, thread-safe) that vmap cannot run ``fn``, and warn once.
+
+    One registry for every batched path (parameter sets here, per-point parameter derivatives
+    in :mod:`pyfrep_core.diff`): a model vmap refuses gets one warning, whichever path found it.
+    """
     with _no_vmap_lock:
         if _weakrefable(fn):
             if fn in _no_vmap:
                 return
             _no_vmap[fn] = reason
     warnings.warn(
-        f"{label}: torch.func.vmap cannot evaluate this model over parameter sets ({reason}); "
-        "evaluating the sets one after the other (slower; write the model without .item(), "
+        f"{label}: torch.func.vmap cannot run this model ({reason}); parameter sets and per-point "
+        "parameter derivatives are evaluated one at a time (slower; write the model without .item(), "
         "Python `if` on parameter values or in-place writes to batch it)",
         RuntimeWarning,
         stacklevel=4,

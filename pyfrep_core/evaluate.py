@@ -2,7 +2,8 @@
 
 The contract every layer relies on: a model ``fn(x, **params)`` is called only with points
 ``x`` of shape (N, d) (a 2-D tensor: never a grid block, never a single 1-D point) and with
-every parameter a float or a 0-d tensor, and must return values of shape (N,).  A user may
+every parameter a 0-d tensor of the points' dtype (a number given is converted), and must
+return values of shape (N,).  A user may
 write any torch code that does so: ``p[:, i]`` indexing, tuples built from parameters as
 centres, ``torch.stack``, ``torch.where``, Python arithmetic on parameters.  What needs more
 is done here, around the call:

@@ -5,7 +5,8 @@ the fitting bounds and sampling.  Calling a model evaluates its defining functio
 
 The calling contract: the kernel calls the defining function ``fn(x, **params)`` only with
 points ``x`` of shape (N, d) (a 2-D tensor: never a grid block, never a single 1-D point) and
-with every parameter a float or a 0-d tensor, and expects values of shape (N,).  Any torch code
+with every parameter a 0-d tensor of the points' dtype (a number given is converted),
+and expects values of shape (N,).  Any torch code
 that does so works: ``p[:, i]`` indexing as in the paper's code, tuples built from parameters
 (``sphere(x, center=(cx, 0.0, 0.0), r=r)``), ``torch.stack``, ``torch.where``, Python arithmetic
 on parameters.  Points of another shape (..., d) are flattened for it and the values reshaped
@@ -224,8 +225,10 @@ class Model:
                 if sizes and v.shape[0] not in sizes:
                     raise ValueError(f"parameter {name} has a batch of {v.shape[0]}, others have {sizes.pop()}")
                 batched[name] = v.to(dtype=t.dtype, device=t.device)
-            else:
+            elif isinstance(v, torch.Tensor):
                 scalars[name] = v
+            else:  # a number becomes a 0-d tensor, so torch code on parameters (torch.stack) works too
+                scalars[name] = torch.tensor(float(v), dtype=t.dtype, device=t.device)
         points = t.reshape(-1, t.shape[-1])  # the model sees (N, d) only: grids and single points flattened
         shape = (next(iter(batched.values())).shape[0],) if batched else ()
         shape += tuple(t.shape[:-1])

@@ -265,7 +265,9 @@ def call_sets(
             continue
         refused = None
         try:
-            out = torch.func.vmap(one, in_dims=(0,) * len(values))(*values)
+            # randomness "same": a model's random draws (a spinodoid's seeded wave directions) are
+            # one draw shared by every set, as each set's own call would draw them from its seed
+            out = torch.func.vmap(one, in_dims=(0,) * len(values), randomness="same")(*values)
         except ModelOutputError:
             raise
         except Exception as error:  # noqa: BLE001  (whatever vmap refuses: the loop decides)

@@ -1,7 +1,7 @@
 """Slider to view: median time from a slider value change to the new mesh in the 3-D view.
 
 The Fig. 1 part, cylinder-radius slider, at 128^3 and 64^3 grid samples.  Each move runs the
-whole journey (ARCHITECTURE.md, journey 1): model on the grid -> marching cubes -> vertices
+whole journey of a slider move: model on the grid -> marching cubes -> vertices
 onto f = 0 and grad f -> sensitivity colouring (df/dp, reusing polygonize's grad f) ->
 points/faces replaced in the view's one PolyData.  Two ways of evaluating the model, as the
 panel does: ``compiled`` (``pyfrep_core.compiled``: torch.compile's fused kernels, dense grid;

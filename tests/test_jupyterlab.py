@@ -1,4 +1,4 @@
-"""The panels in JupyterLab, driven by Playwright/Chromium: the subshell path of STACK.md pitfall 2.
+"""The panels in JupyterLab, driven by Playwright/Chromium, with widget callbacks on a kernel subshell thread.
 
 JupyterLab 4.6 sends widget messages over a kernel *subshell* (``commsOverSubshells``, on by
 default and left on here), so widget callbacks run on a thread other than the kernel's main one,

@@ -2,7 +2,8 @@
 
 Why: a widget callback that meshes or trains for seconds blocks the kernel, so slider moves
 pile up and Stop cannot be pressed.  Work runs on a background thread; what touches VTK
-(renders) must run on the main thread (STACK.md pitfall 2), so it is sent back through the
+(renders) must run on the main thread (VTK renders black frames from JupyterLab's subshell
+threads), so it is sent back through the
 asyncio loop the kernel runs (``loop.call_soon_threadsafe``).  Without a running loop (plain
 scripts, pytest) such calls are queued and run by :meth:`MainThread.drain`.
 """

@@ -1,6 +1,6 @@
 """Fitting panel: recover a model's parameters from a point cloud (paper section 5.4, Figs. 7 and 8).
 
-Journey 2 of ARCHITECTURE.md: points -> ``pyfrep_core.fitting.fit`` (on a background thread, Stop
+A fit's journey: points -> ``pyfrep_core.fitting.fit`` (on a background thread, Stop
 sets its ``stop`` flag) -> progress events -> live loss chart (log scale, one series per stage)
 and parameter trajectories against the true values -> the cloud coloured by the per-point
 residual |f(x_i; p)| and the fitted surface (``polygonize``) overlaid in the 3-D view.

@@ -1,6 +1,6 @@
 """Shape panel: one slider per declared parameter, the surface re-meshed live in one 3-D view.
 
-Journey 1 of ARCHITECTURE.md: slider -> ``polygonize(model(., **params))`` -> points/faces replaced
+The slider's journey: slider -> ``polygonize(model(., **params))`` -> points/faces replaced
 in the view's one PolyData -> render.  Meshing runs on a background thread that only ever builds
 the newest request (moves made meanwhile are coalesced); while a slider is dragged the mesh is
 built at ``preview_resolution`` and, once it rests for ``settle`` seconds, at full resolution.

@@ -8,7 +8,7 @@
   with no trame and no WebGL (nbval, plain servers, tests).
 
 ``"auto"`` takes ``$PYFREP_VIEW`` when set, else trame inside a running kernel when it imports,
-else the image.  Renders must happen on the main thread (STACK.md pitfall 2).
+else the image.  Renders must happen on the main thread (VTK renders black frames from other threads).
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ from typing import Any
 import ipywidgets as widgets
 import numpy as np
 
-# EGL needs no X server; set before VTK creates its first window (STACK.md: saves ~1.5 s).
+# EGL needs no X server; set before VTK creates its first window (saves ~1.5 s at the first render).
 os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
 # Offline: trame_vtklocal (loaded by pyvista's trame server, unused here) downloads a VTK wasm
 # bundle from gitlab.kitware.com unless pointed at a local directory; an empty one will do.

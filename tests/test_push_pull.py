@@ -1,0 +1,91 @@
+"""Push-pull: the surface moved through a point by a distance, the parameters solved for.
+
+Truths: R-functions keep the zero sets of their arguments, so where one primitive forms the
+surface (a drilled cylinder's wall, the pawn's head) moving that primitive's parameter moves
+the surface by exactly the same amount; the solver's own tolerance (1e-9 in length) is all
+that separates the result from the closed form.
+"""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from pyfrep_core import Param, model, sphere
+from pyfrep_core.models import fig1_part, pawn
+from pyfrep_core.push_pull import push_pull
+
+C = 0.5 / math.sqrt(2.0)
+WALL = [C, C, 0.6]  # on the z cylinder's wall (radius 0.5), away from the other two holes and the cube
+
+
+@model(bounds=((-3,) * 3, (3,) * 3), r=Param(1.0, 0.5, 2.0), cx=Param(0.0, -1.0, 1.0))
+def shifted_ball(x, r, cx):
+    return sphere(x, center=(cx, 0.0, 0.0), r=r)
+
+
+def test_fig1_cylinder_wall_pulled_out_narrows_the_hole_by_the_displacement():
+    # outward from the solid on a hole's wall points to the axis: the hole's radius shrinks by 0.05
+    result = push_pull(fig1_part, WALL, 0.05)
+    assert result.converged
+    assert result.change["r"] == pytest.approx(-0.05, abs=1e-6)
+    assert np.hypot(*result.target[:2]) == pytest.approx(0.45, abs=1e-12)
+    assert float(fig1_part(result.target[None], **result.params)[0]) == pytest.approx(0.0, abs=1e-8)
+    pushed = push_pull(fig1_part, WALL, -0.05)  # into the solid: the hole widens
+    assert pushed.change["r"] == pytest.approx(0.05, abs=1e-6)
+
+
+def test_a_point_beside_the_surface_is_projected_first():
+    off = [C * 1.002, C * 1.002, 0.6]  # 1.4e-3 into the solid
+    result = push_pull(fig1_part, off, 0.05)
+    assert np.hypot(*result.point[:2]) == pytest.approx(0.5, abs=1e-9)
+    assert result.change["r"] == pytest.approx(-0.05, abs=1e-6)
+
+
+def test_bounds_hold_and_the_distance_left_is_reported():
+    result = push_pull(fig1_part, WALL, 0.4)  # would need r = 0.1, below the range [0.2, 0.8]
+    assert result.params["r"] == 0.2 and result.at_bound == ("r",)
+    assert not result.converged
+    # wall at radius 0.2, target at 0.1; the walk to the wall follows grad f, which the R-intersection
+    # with the cube tilts slightly off the radial direction (3e-5 here): 1e-3 tells 0.1 from 0.132 (f/|grad f|)
+    assert result.distance == pytest.approx(0.1, abs=1e-3)
+
+
+def test_smallest_change_in_units_of_each_range():
+    # at (1, 0, 0) both r and cx move the surface outward at unit speed: dr + dcx = d exactly.
+    # The smallest change in range units u_j = dp_j / span_j splits d as span_j^2 / sum span^2.
+    d = 0.1
+    result = push_pull(shifted_ball, [1.0, 0.0, 0.0], d)
+    spans = np.array([1.5, 2.0])
+    share = spans**2 / np.sum(spans**2)
+    assert result.converged
+    assert result.change["r"] == pytest.approx(d * share[0], abs=1e-8)
+    assert result.change["cx"] == pytest.approx(d * share[1], abs=1e-8)
+    only_r = push_pull(shifted_ball, torch.tensor([1.0, 0.0, 0.0], dtype=torch.float32), d, free=["r"])
+    assert only_r.change == pytest.approx({"r": d}, abs=1e-7)
+    assert only_r.params["cx"] == 0.0
+
+
+def test_pawn_head_pulled_moves_the_head_radius_only():
+    top = [0.0, 0.0, 0.45 + 0.27 + 0.3]
+    result = push_pull(pawn, top, 0.03, params=pawn.defaults())
+    assert result.converged
+    assert result.change["head_radius"] == pytest.approx(0.03, abs=1e-6)
+    for name in ("neck_radius", "base_radius", "collar_radius"):
+        assert abs(result.change[name]) < 1e-5
+
+
+def test_refusals_name_the_problem():
+    with pytest.raises(ValueError, match="free must name declared parameters"):
+        push_pull(fig1_part, WALL, 0.05, free=["radius"])
+    with pytest.raises(ValueError, match="grad f vanishes"):
+        push_pull(shifted_ball, [0.0, 0.0, 0.0], 0.05)
+    with pytest.raises(ValueError, match="no free parameter"):
+        push_pull(pawn, [0.0, 0.0, 0.45 + 0.27 + 0.3], 0.03, free=["base_radius"])
+    with pytest.raises(ValueError, match="displacement must be a finite number"):
+        push_pull(fig1_part, WALL, float("nan"))
+    with pytest.raises(ValueError, match="outside its range"):
+        push_pull(fig1_part, WALL, 0.05, params={"r": 0.9})
+    with pytest.raises(ValueError, match="one point"):
+        push_pull(fig1_part, [WALL, WALL], 0.05)

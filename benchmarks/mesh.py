@@ -33,15 +33,9 @@ from skimage.measure import marching_cubes
 from pyfrep_core import polygonize
 from pyfrep_core._threads import intra_op_threads
 from pyfrep_core.compiled import compiled, warm_up
-from pyfrep_core.mesh import (
-    SPARSE_GUARD,
-    SPARSE_STEP,
-    _evaluate_grid,
-    _exact_neighbours,
-    _project_vertices,
-    _sparse_grid,
-    grid_axes,
-)
+from pyfrep_core.meshing.grid import _evaluate_grid, grid_axes
+from pyfrep_core.meshing.roots import _project_vertices
+from pyfrep_core.meshing.sparse import SPARSE_GUARD, SPARSE_STEP, _exact_neighbours, _sparse_grid
 from pyfrep_core.models import fig1_part
 
 QUICK = os.environ.get("PYFREP_QUICK", "") not in ("", "0")

@@ -17,7 +17,7 @@ import numpy as np
 import torch
 
 from pyfrep_core.distance import distance_error, fmm_distance, true_distance
-from pyfrep_core.mesh import grid_axes
+from pyfrep_core.meshing import grid_axes
 from pyfrep_core.primitives import ellipsoid
 from pyfrep_core.redistancing import redistance
 

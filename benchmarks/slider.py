@@ -37,16 +37,9 @@ from skimage.measure import marching_cubes
 from pyfrep_core import Mesh
 from pyfrep_core._threads import intra_op_threads
 from pyfrep_core.compiled import compiled as compiled_model
-from pyfrep_core.mesh import (
-    SPARSE_GUARD,
-    SPARSE_STEP,
-    _evaluate_grid,
-    _exact_neighbours,
-    _normals,
-    _project_vertices,
-    _sparse_grid,
-    grid_axes,
-)
+from pyfrep_core.meshing.grid import _evaluate_grid, grid_axes
+from pyfrep_core.meshing.roots import _normals, _project_vertices
+from pyfrep_core.meshing.sparse import SPARSE_GUARD, SPARSE_STEP, _exact_neighbours, _sparse_grid
 from pyfrep_core.models import fig1_part
 from pyfrep_core.sensitivity import param_derivative
 from workbench.shape_panel import shape_panel

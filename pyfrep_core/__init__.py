@@ -30,7 +30,7 @@ from .fitting import FitResult, fit
 from .io import load_mesh, load_points, save_mesh, save_points
 from .lattices import *  # noqa: F403
 from .lattices import __all__ as _lattices_all
-from .mesh import Mesh, polygonize
+from .meshing import Mesh, polygonize
 from .model import Model, Param, model
 from .normalization import delta_1, normalized, omega_1, omega_k
 from .operations import *  # noqa: F403

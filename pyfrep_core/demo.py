@@ -12,7 +12,7 @@ import os
 import time
 from pathlib import Path
 
-from .mesh import Mesh, polygonize
+from .meshing import Mesh, polygonize
 from .models import fig1_part
 
 __all__ = ["render_png", "main"]

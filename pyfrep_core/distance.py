@@ -38,7 +38,7 @@ from scipy.spatial import cKDTree
 from ._array import as_tensor, check_finite, check_option, check_points
 from .diff import grad, project_to_surface
 from .evaluate import evaluate
-from .mesh import Mesh, evaluate_grid, grid_axes, polygonize
+from .meshing import Mesh, evaluate_grid, grid_axes, polygonize
 from .model import check_bounds
 from .progress import StopFlag
 

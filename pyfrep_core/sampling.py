@@ -22,7 +22,7 @@ import torch
 
 from ._array import check_memory, check_option
 from .diff import project_to_surface
-from .mesh import Mesh, polygonize
+from .meshing import Mesh, polygonize
 from .model import Model, check_bounds
 
 __all__ = ["sample_surface", "sample_mesh"]
@@ -84,7 +84,7 @@ def sample_surface(
 ) -> np.ndarray:
     """``n`` points on the surface f = 0 of a model, as an (n, 3) float64 array.
 
-    Marching cubes (:func:`pyfrep_core.mesh.polygonize`) gives a mesh of the surface; points
+    Marching cubes (:func:`pyfrep_core.meshing.polygonize`) gives a mesh of the surface; points
     are drawn on it by area, then moved onto f = 0 by Newton steps
     (:func:`pyfrep_core.diff.project_to_surface`, float64, at most one grid cell).  Points that
     do not converge are dropped and redrawn, never kept, so every returned point (before

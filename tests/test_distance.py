@@ -9,7 +9,7 @@ from scipy.spatial import cKDTree
 
 from pyfrep_core import sphere
 from pyfrep_core.distance import distance_error, fmm_distance, surface_samples, true_distance
-from pyfrep_core.mesh import grid_axes
+from pyfrep_core.meshing import grid_axes
 
 BOUNDS = ((-1.5,) * 3, (1.5,) * 3)
 R = 0.8

@@ -12,7 +12,7 @@ import torch
 
 from pyfrep_core import Mesh, Param, grad, model, polygonize, sphere
 from pyfrep_core.diff import value_and_grad
-from pyfrep_core.mesh import GridTooLargeError, evaluate_grid, grid_axes, grid_memory
+from pyfrep_core.meshing import GridTooLargeError, evaluate_grid, grid_axes, grid_memory
 from pyfrep_core.models import fig1_part
 
 BOX = ((-1.1,) * 3, (1.1,) * 3)
@@ -335,11 +335,11 @@ def _sparse_cases():
 
 @pytest.mark.parametrize("case", _sparse_cases(), ids=lambda c: c[0])
 def test_sparse_evaluation_gives_the_dense_mesh(case, monkeypatch):
-    import pyfrep_core.mesh as mesh_module
+    import pyfrep_core.meshing.sparse as sparse_module
 
     _, f, bounds, n = case
     # never fall back to the dense grid, so that lattices exercise the sparse path too
-    monkeypatch.setattr(mesh_module, "SPARSE_MAX_FRACTION", 1.0)
+    monkeypatch.setattr(sparse_module, "SPARSE_MAX_FRACTION", 1.0)
     dense = polygonize(f, bounds, n)
     sparse = polygonize(f, bounds, n, sparse=True)
     assert dense.n_faces > 0
@@ -349,7 +349,7 @@ def test_sparse_evaluation_gives_the_dense_mesh(case, monkeypatch):
 
 
 def test_sparse_evaluation_skips_most_of_the_grid_and_falls_back_on_lattices():
-    from pyfrep_core.mesh import SPARSE_STEP, _sparse_grid
+    from pyfrep_core.meshing.sparse import SPARSE_STEP, _sparse_grid
 
     calls = []
 
@@ -401,9 +401,9 @@ def test_coincident_vertices_are_merged_and_the_mesh_stays_closed(tmp_path):
 
 @pytest.mark.parametrize("resolution, dtype", [((41, 50, 63), torch.float32), (57, torch.float64)])
 def test_sparse_evaluation_on_uneven_blocks_and_in_float64(resolution, dtype, monkeypatch):
-    import pyfrep_core.mesh as mesh_module
+    import pyfrep_core.meshing.sparse as sparse_module
 
-    monkeypatch.setattr(mesh_module, "SPARSE_MAX_FRACTION", 1.0)
+    monkeypatch.setattr(sparse_module, "SPARSE_MAX_FRACTION", 1.0)
     bounds = ((-1.1, -1.0, -1.2), (1.1, 1.05, 1.0))  # the Fig. 1 part cut by the box: an open mesh
     dense = polygonize(fig1_part, bounds, resolution, dtype=dtype)
     sparse = polygonize(fig1_part, bounds, resolution, dtype=dtype, sparse=True)

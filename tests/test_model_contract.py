@@ -39,7 +39,7 @@ from pyfrep_core import (
     union,
 )
 from pyfrep_core import evaluate as ev
-from pyfrep_core.mesh import evaluate_grid
+from pyfrep_core.meshing import evaluate_grid
 
 F64 = torch.float64
 BOX = ((-1.2,) * 3, (1.2,) * 3)
@@ -281,7 +281,7 @@ _MEMORY_SCRIPT = r"""
 import json, sys, torch
 from pyfrep_core import Param, model
 from pyfrep_core.evaluate import budget_points
-from pyfrep_core.mesh import evaluate_grid, CHUNK_POINTS
+from pyfrep_core.meshing.grid import evaluate_grid, CHUNK_POINTS
 
 @model(bounds=((-1.2,) * 3, (1.2,) * 3), r=Param(1.0, 0.5, 1.1), cx=Param(0.0, -0.2, 0.2))
 def user(p, r, cx):

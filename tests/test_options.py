@@ -22,7 +22,7 @@ import torch
 from pyfrep_core import Param, fit, model, offset, polygonize, project_to_surface, sample_surface, shell, sphere
 from pyfrep_core.distance import TrueDistance, distance_error, fmm_distance, surface_samples, true_distance
 from pyfrep_core.fitting import fit_error
-from pyfrep_core.mesh import Mesh, evaluate_grid, grid_axes, grid_memory
+from pyfrep_core.meshing import Mesh, evaluate_grid, grid_axes, grid_memory
 from pyfrep_core.normalization import normalized
 from pyfrep_core.redistancing import RedistancedSDF, redistance
 from pyfrep_core.sampling import sample_mesh
@@ -400,7 +400,7 @@ MEASURE = textwrap.dedent(
     """
     import json, sys, torch
     from pyfrep_core import polygonize
-    from pyfrep_core.mesh import grid_memory
+    from pyfrep_core.meshing import grid_memory
     torch.set_num_threads(1)
     res = tuple(json.loads(sys.argv[1]))
     plane = lambda x: 0.01 - x[..., 2]  # parallel to the slab, between its two layers: one vertex per z-line

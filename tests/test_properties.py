@@ -36,7 +36,7 @@ from torch.overrides import TorchFunctionMode
 
 import pyfrep_core as P
 from pyfrep_core import sdf
-from pyfrep_core.mesh import grid_axes
+from pyfrep_core.meshing import grid_axes
 
 COMMON = {
     "deadline": None,

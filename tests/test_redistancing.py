@@ -12,7 +12,7 @@ import torch
 
 from pyfrep_core import block, sphere
 from pyfrep_core.distance import distance_error
-from pyfrep_core.mesh import grid_axes
+from pyfrep_core.meshing import grid_axes
 from pyfrep_core.redistancing import RedistancedSDF, load_redistanced, redistance
 
 QUICK = os.environ.get("PYFREP_QUICK", "0") not in ("", "0")

@@ -6,8 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from pyfrep_core import Param, model, sample_surface, sphere
-from pyfrep_core.mesh import Mesh
+from pyfrep_core import Mesh, Param, model, sample_surface, sphere
 from pyfrep_core.models import microstructure
 from pyfrep_core.sampling import sample_mesh
 

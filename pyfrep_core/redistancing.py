@@ -79,13 +79,11 @@ True
 from __future__ import annotations
 
 import contextlib
-import math
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import torch
-from torch import nn
 
 from ._array import as_tensor, check_finite, check_option, check_points, skip_checks, validated_inputs
 from ._threads import intra_op_threads
@@ -93,44 +91,19 @@ from .diff import value_and_grad
 from .distance import MAX_RESOLUTION, surface_samples, true_distance
 from .evaluate import evaluate
 from .model import check_bounds
+from .networks import MAX_SEED, ImplicitNetwork, cosine_lr
 from .progress import Event, Progress, StopFlag
 
 __all__ = ["RedistancedSDF", "redistance", "load_redistanced"]
 
 FORMAT = "pyfrep-redistanced-1"
-ACTIVATIONS = ("softplus", "silu", "tanh", "relu", "leaky_relu")
-DTYPES = (torch.float32, torch.float64)
-MAX_SEED = 2**63 - 2  # torch.Generator takes 64-bit seeds; the batches use seed + 1
 
 
-class _FourierFeatures(nn.Module):
-    """x -> (x, sin(xB), cos(xB)) with a fixed random B (3, m) of scale sigma."""
-
-    def __init__(self, m: int, sigma: float, generator: torch.Generator):
-        super().__init__()
-        self.register_buffer("B", torch.randn(3, m, generator=generator) * sigma)
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        z = x @ self.B
-        return torch.cat([x, torch.sin(z), torch.cos(z)], dim=-1)
-
-
-def _activation(name: str, beta: float) -> nn.Module:
-    if name == "relu":
-        return nn.ReLU()
-    if name == "leaky_relu":
-        return nn.LeakyReLU(0.1)
-    if name == "softplus":
-        return nn.Softplus(beta=beta)
-    if name == "silu":
-        return nn.SiLU()
-    return nn.Tanh()
-
-
-class RedistancedSDF(nn.Module):
+class RedistancedSDF(ImplicitNetwork):
     """``d(x) = sign(f(x)) |g(x; theta)|``: a signed distance whose zero set is that of f.
 
-    Call it on points (..., 3) (torch, any float dtype, or numpy) for d (...).  The network
+    g is an :class:`~pyfrep_core.networks.ImplicitNetwork` (He-initialised).  Call it on
+    points (..., 3) (torch, any float dtype, or numpy) for d (...).  The network
     is float32 by default; inputs of another dtype are converted and the result converted
     back.  ``history`` holds the training loss per step; ``config`` rebuilds the
     architecture (:func:`load_redistanced`).
@@ -157,64 +130,14 @@ class RedistancedSDF(nn.Module):
         seed: int = 0,
         dtype: torch.dtype = torch.float32,
     ):
-        super().__init__()
         if not callable(f):
             raise TypeError(f"f must be callable (points (N, 3) -> values (N,)), got {type(f).__name__}")
-        lo, hi = check_bounds(bounds, 3)
-        fn = "RedistancedSDF"
-        width = check_option(width, "width", fn, "int", positive=True)
-        depth = check_option(depth, "depth", fn, "int", positive=True)
-        activation = check_option(activation, "activation", fn, "choice", choices=ACTIVATIONS)
-        last_activation = check_option(last_activation, "last_activation", fn, "choice", choices=ACTIVATIONS, none=True)
-        beta = check_option(beta, "beta", fn, positive=True)
-        fourier_features = check_option(fourier_features, "fourier_features", fn, "int", minimum=0)
-        fourier_scale = check_option(fourier_scale, "fourier_scale", fn, positive=True)
-        seed = check_option(seed, "seed", fn, "int", minimum=0, maximum=MAX_SEED)
-        dtype = check_option(dtype, "dtype", fn, "choice", choices=DTYPES)
+        super().__init__(
+            bounds, width=width, depth=depth, activation=activation, last_activation=last_activation, beta=beta,
+            fourier_features=fourier_features, fourier_scale=fourier_scale, seed=seed, dtype=dtype,
+            fn="RedistancedSDF",
+        )  # fmt: skip
         self.f = f
-        self.config = {
-            "bounds": [list(lo), list(hi)],
-            "width": int(width),
-            "depth": int(depth),
-            "activation": activation,
-            "last_activation": last_activation,
-            "beta": float(beta),
-            "fourier_features": int(fourier_features),
-            "fourier_scale": float(fourier_scale),
-            "seed": int(seed),
-            "dtype": str(dtype).removeprefix("torch."),
-        }
-        self.history: list[float] = []
-        gen = torch.Generator().manual_seed(int(seed))
-        center = [(a + b) / 2 for a, b in zip(lo, hi)]
-        # isotropic scaling to [-1, 1]: |grad| of the inner network is then |grad d| (eikonal unchanged)
-        half = max((b - a) / 2 for a, b in zip(lo, hi))
-        self.register_buffer("center", torch.tensor(center, dtype=dtype))
-        self.register_buffer("scale", torch.tensor(half, dtype=dtype))
-        layers: list[nn.Module] = []
-        d_in = 3
-        if fourier_features:
-            layers.append(_FourierFeatures(int(fourier_features), float(fourier_scale), gen))
-            d_in = 3 + 2 * int(fourier_features)
-        for i in range(int(depth)):
-            lin = nn.Linear(d_in, int(width))
-            _init_linear(lin, gen)
-            name = last_activation if last_activation is not None and i == int(depth) - 1 else activation
-            layers += [lin, _activation(name, float(beta))]
-            d_in = int(width)
-        last = nn.Linear(d_in, 1)
-        _init_linear(last, gen)
-        layers.append(last)
-        self.net = nn.Sequential(*layers).to(dtype)
-
-    @property
-    def dtype(self) -> torch.dtype:
-        return self.scale.dtype
-
-    def signed_network(self, x: torch.Tensor) -> torch.Tensor:
-        """g(x; theta) (...,), the smooth signed-distance network, in the network's dtype."""
-        z = (x.to(self.dtype) - self.center) / self.scale
-        return self.net(z).squeeze(-1) * self.scale
 
     def h(self, x: torch.Tensor) -> torch.Tensor:
         """The ansatz's magnitude h = |g| >= 0."""
@@ -246,13 +169,6 @@ class RedistancedSDF(nn.Module):
             {"format": FORMAT, "config": self.config, "state_dict": self.state_dict(), "history": self.history},
             Path(path),
         )
-
-
-def _init_linear(lin: nn.Linear, gen: torch.Generator) -> None:
-    """He-style normal weights (seeded), zero bias."""
-    with torch.no_grad():
-        lin.weight.normal_(0.0, math.sqrt(2.0 / lin.in_features), generator=gen)
-        lin.bias.zero_()
 
 
 def load_redistanced(path: str | Path, f: Callable) -> RedistancedSDF:
@@ -464,7 +380,7 @@ def redistance(
     gen = torch.Generator().manual_seed(seed + 1)
     lo_t, hi_t = torch.tensor(lo, dtype=torch_dtype), torch.tensor(hi, dtype=torch_dtype)
     optimizer = torch.optim.Adam(model.parameters(), lr=lr)
-    schedule = torch.optim.lr_scheduler.LambdaLR(optimizer, lambda k: _cosine(k, int(steps)))
+    schedule = torch.optim.lr_scheduler.LambdaLR(optimizer, lambda k: cosine_lr(k, int(steps)))
     # the supervised term needs g only; the eikonal term needs grad g (double backward, ~3x
     # the cost per point), so it gets a smaller batch of fresh uniform points
     n_pool = batch if supervised > 0 else max(64, batch // 4)
@@ -515,11 +431,3 @@ def _refit_last_layer(model: RedistancedSDF, x: torch.Tensor, d: torch.Tensor, r
         sol = torch.linalg.solve(lhs, a.T @ (d.double() / model.scale.double()))
         last.weight.copy_(sol[:-1].reshape(1, -1).to(last.weight.dtype))
         last.bias.copy_(sol[-1:].to(last.bias.dtype))
-
-
-def _cosine(k: int, steps: int, warmup: int = 20) -> float:
-    """Learning-rate factor: linear warm-up, then cosine decay to 1 % of the peak."""
-    if k < warmup:
-        return (k + 1) / warmup
-    t = min(1.0, (k - warmup) / max(1, steps - warmup))
-    return 0.01 + 0.99 * 0.5 * (1.0 + math.cos(math.pi * t))

@@ -89,3 +89,39 @@ def test_refusals_name_the_problem():
         push_pull(fig1_part, WALL, 0.05, params={"r": 0.9})
     with pytest.raises(ValueError, match="one point"):
         push_pull(fig1_part, [WALL, WALL], 0.05)
+
+
+def _pixel(plotter, point):
+    """Display coordinates (origin bottom left) of a world point in the plotter's renderer."""
+    ren = plotter.renderer
+    ren.SetWorldPoint(*point, 1.0)
+    ren.WorldToDisplay()
+    x, y, _ = ren.GetDisplayPoint()
+    return round(x), round(y)
+
+
+def test_shape_panel_click_then_pull_moves_the_slider():
+    from workbench.shape_panel import ShapePanel
+
+    panel = ShapePanel(fig1_part, resolution=48, backend="image", threaded=False, compiled=False)
+    try:
+        pp = panel.push_pull
+        assert pp.pull.disabled  # nothing picked yet
+        # a click on the sphere's face seen by the isometric camera picks the point under the pixel
+        seen = np.full(3, 1.0 / math.sqrt(3.0))
+        pp.click(*_pixel(panel.view.plotter, seen))
+        assert pp.point is not None and np.linalg.norm(pp.point - seen) < 0.02
+        assert not pp.pull.disabled
+        # pick the cylinder wall, type a pull of +0.05: the slider r goes to 0.45, the view remeshes
+        pp.pick(WALL)
+        before = panel.remesh_count
+        pp.pull.value = 0.05
+        assert panel.sliders["r"].value == pytest.approx(0.45, abs=1e-6)
+        assert panel.remesh_count == before + 1 and panel.last_job["params"]["r"] == pytest.approx(0.45, abs=1e-6)
+        assert "passes through the target" in pp.status.value
+        pp.pull.value = -0.05  # dragged back past 0: from the parameters at the pick
+        assert panel.sliders["r"].value == pytest.approx(0.55, abs=1e-6)
+        pp.pull.value = 0.4
+        assert panel.sliders["r"].value == 0.2 and "r at a bound" in pp.status.value
+    finally:
+        panel.view.close()

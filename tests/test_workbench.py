@@ -336,6 +336,7 @@ def test_app_has_every_tab_and_survives_a_missing_module(monkeypatch):
     try:
         assert [w.get_title(i) for i in range(len(w.children))] == [
             "Shape",
+            "Model",
             "Curvature",
             "Slices",
             "Redistancing",

@@ -15,11 +15,14 @@ from typing import Any
 
 import ipywidgets as widgets
 
+from .user_models import offer, register
+
 __all__ = ["App", "app", "paper_models"]
 
 # (tab title, "module:function" building the panel)
 TABS: tuple[tuple[str, str], ...] = (
     ("Shape", "workbench.shape_panel:paper_shape_panel"),
+    ("Model", "workbench.model_panel:model_panel"),
     ("Curvature", "workbench.curvature_panel:curvature_panel"),
     ("Slices", "workbench.slice_panel:slice_panel"),
     ("Redistancing", "workbench.redistance_panel:redistance_panel"),
@@ -30,15 +33,18 @@ PAPER_MODELS = ("fig1_part", "schwarz_d", "ellipse", "pawn", "microstructure")
 
 
 def paper_models(dim: int | None = None) -> dict[str, Any]:
-    """The paper's shapes available in ``pyfrep_core.models`` (name -> Model), optionally of one dimension."""
+    """The paper's shapes available in ``pyfrep_core.models`` (name -> Model), optionally of one dimension,
+    then the models the user wrote in the Model tab (:mod:`workbench.user_models`)."""
     from pyfrep_core import models
+
+    from .user_models import user_models
 
     found = {}
     for name in PAPER_MODELS:
         m = getattr(models, name, None)
         if m is not None and (dim is None or getattr(m, "dim", 3) == dim):
             found[name] = m
-    return found
+    return {**found, **user_models(dim)}
 
 
 def unavailable(what: str, err: BaseException) -> widgets.HTML:
@@ -64,6 +70,7 @@ class App(widgets.Tab):
         self.backend = backend
         self.options = options or {}
         self.panels: dict[str, Any] = {}
+        self.user_model: Any = None  # the model last run in the Model tab, opened in every panel
         boxes = [widgets.VBox([widgets.HTML(f"<i>opening {title}...</i>")]) for title, _ in TABS]
         super().__init__(children=boxes)
         for i, (title, _) in enumerate(TABS):
@@ -91,7 +98,18 @@ class App(widgets.Tab):
         self.panels[title] = panel
         self.children[index].children = (panel,)
         self._link()
+        if hasattr(panel, "on_run"):  # the Model tab: a model run there opens in every panel
+            panel.on_run.append(self.open_model)
+        elif self.user_model is not None:
+            offer(panel, self.user_model)
         return panel
+
+    def open_model(self, model: Any) -> list[str]:
+        """Offer ``model`` (a user's) in every panel's menu and open it in the panels built so far
+        (the others open it when first shown); returns the titles of the tabs that opened it."""
+        register(model)
+        self.user_model = model
+        return [title for title, panel in self.panels.items() if offer(panel, model)]
 
     def _link(self) -> None:
         """Networks trained in the redistancing tab appear in the slice tab."""
@@ -108,13 +126,13 @@ class App(widgets.Tab):
 
 
 def app(backend: str = "auto", eager: bool = False, **options: dict) -> App:
-    """All panels in tabs: shape (Fig. 1, 2), curvature (Fig. 3), slices (Figs. 4-6),
-    redistancing, fitting (Figs. 7, 8).
+    """All panels in tabs: shape (Fig. 1, 2), your own model (typed in a code editor), curvature (Fig. 3),
+    slices (Figs. 4-6), redistancing, fitting (Figs. 7, 8).
 
     Examples
     --------
     >>> w = app(backend="image", Shape={"resolution": 32, "threaded": False})
     >>> [w.get_title(i) for i in range(len(w.children))]
-    ['Shape', 'Curvature', 'Slices', 'Redistancing', 'Fitting']
+    ['Shape', 'Model', 'Curvature', 'Slices', 'Redistancing', 'Fitting']
     """
     return App(backend=backend, eager=eager, options=options)

@@ -34,6 +34,7 @@ from pyfrep_core.model import check_bounds
 from pyfrep_core.sensitivity import normal_velocity, param_derivative, velocity
 
 from ._threads import LatestWorker, MainThread
+from .push_pull import PushPullControls
 from .view import MeshView
 
 __all__ = ["ShapePanel", "paper_shape_panel", "param_slider", "shape_panel", "surface_velocity", "symmetric_range"]
@@ -215,6 +216,7 @@ class ShapePanel(widgets.VBox):
         self._bounds_value = bounds
         self.worker = LatestWorker(self._build, self._show, self.main, settle=settle)
         self._warm_thread: threading.Thread | None = None
+        self.push_pull = PushPullControls(self)  # click the surface, pull it: the sliders are solved for
 
         self._make_sliders(model)
         self.choice.observe(lambda change: self.set_model(self.choices[change["new"]]), names="value")
@@ -234,6 +236,7 @@ class ShapePanel(widgets.VBox):
                 self.choice,
                 self.title,
                 self.slider_box,
+                self.push_pull.widget,
                 self.resolution,
                 self.bounds,
                 self.colouring,

@@ -1,0 +1,103 @@
+"""A code editor from plain ipywidgets: a monospace Textarea beside a gutter of line numbers.
+
+No maintained editor widget (Ace, CodeMirror, Monaco) installs from PyPI for ipywidgets 8 and
+runs in Voila offline: ipyaceeditor and ipycodemirror do not exist there and ipymonaco (2020,
+alpha) loads Monaco from a CDN.  So the editor is a Textarea styled as code, with a gutter
+whose lines match the text's: the Textarea grows with the text instead of scrolling and does
+not wrap lines, so line k of the gutter stays beside line k of the code.  A line can be marked
+(an error's line).  Tab moves the focus, as in any browser text box: indent with spaces.
+"""
+
+from __future__ import annotations
+
+import html
+
+import ipywidgets as widgets
+
+__all__ = ["CodeEditor"]
+
+FONT = "'DejaVu Sans Mono', 'Liberation Mono', Menlo, Consolas, monospace"
+LINE = 18  # px per line, the same in the gutter and the text
+PAD = 6  # px above the first line: the Textarea's border (1) and padding (5)
+
+STYLE = f"""<style>
+.pyfrep-code textarea {{
+  font-family: {FONT}; font-size: 13px; line-height: {LINE}px; padding: {PAD - 1}px 8px;
+  white-space: pre; overflow-wrap: normal; overflow-x: auto; overflow-y: hidden; tab-size: 4;
+  resize: none; background: #fcfcfc; color: #1b1b1b;
+}}
+.pyfrep-gutter pre {{
+  font-family: {FONT}; font-size: 13px; line-height: {LINE}px; margin: 0; padding: {PAD}px 6px 0 4px;
+  text-align: right; color: #777; background: #eef0f2; min-width: 2.2em; user-select: none;
+}}
+.pyfrep-gutter .bad {{ background: #f4b8b8; color: #7a0000; font-weight: bold; }}
+</style>"""
+
+
+class CodeEditor(widgets.HBox):
+    """A monospace text box with line numbers.
+
+    Parameters
+    ----------
+    value : the initial code.
+    min_rows : the box shows at least this many lines.
+    width : CSS width of the text box.
+
+    Attributes
+    ----------
+    text : the Textarea (``text.value`` is the code).   gutter : the line numbers (HTML).
+    marked : the line marked (1-based), or None.
+
+    Examples
+    --------
+    >>> editor = CodeEditor("a = 1\\nb = 2\\n")
+    >>> editor.text.rows >= 3, editor.gutter.value.count("\\n") >= 2
+    (True, True)
+    >>> editor.mark(2)
+    >>> "class='bad'>2<" in editor.gutter.value
+    True
+    >>> editor.value = "c = 3"  # an edit clears the mark
+    >>> editor.marked is None
+    True
+    """
+
+    def __init__(self, value: str = "", min_rows: int = 16, width: str = "640px"):
+        self.min_rows = min_rows
+        self.marked: int | None = None
+        self.text = widgets.Textarea(value=value, layout=widgets.Layout(width=width), continuous_update=True)
+        self.text.add_class("pyfrep-code")
+        self.gutter = widgets.HTML()
+        self.gutter.add_class("pyfrep-gutter")
+        style = widgets.HTML(STYLE, layout=widgets.Layout(width="0px", height="0px", overflow="hidden"))
+        super().__init__([style, self.gutter, self.text], layout=widgets.Layout(align_items="flex-start"))
+        self.text.observe(self._edited, names="value")
+        self._edited()
+
+    @property
+    def value(self) -> str:
+        """The code."""
+        return self.text.value
+
+    @value.setter
+    def value(self, code: str) -> None:
+        self.text.value = code
+
+    def _lines(self) -> int:
+        return self.text.value.count("\n") + 1
+
+    def _edited(self, _: object = None) -> None:
+        self.marked = None
+        self.text.rows = max(self.min_rows, self._lines() + 1)  # grow: the gutter never scrolls apart
+        self._draw()
+
+    def mark(self, line: int | None) -> None:
+        """Mark line ``line`` (1-based) in the gutter; None clears the mark."""
+        self.marked = line
+        self._draw()
+
+    def _draw(self) -> None:
+        numbers = [
+            f"<span class='bad'>{k}</span>" if k == self.marked else html.escape(str(k))
+            for k in range(1, self._lines() + 1)
+        ]
+        self.gutter.value = "<pre>" + "\n".join(numbers) + "</pre>"

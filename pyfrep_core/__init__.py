@@ -25,8 +25,9 @@ from .convolution import *  # noqa: F403
 from .convolution import __all__ as _convolution_all
 from .curvature import Curvatures, attach_curvatures, curvatures, gaussian_curvature, mean_curvature
 from .diff import div, grad, hessian, laplacian, p_laplacian, param_grad, project_to_surface, value_and_grad
-from .distance import distance_error, fmm_distance, true_distance
+from .distance import distance_error, fmm_distance, surface_distance, true_distance
 from .fitting import FitResult, fit
+from .freeform import FreeformModel, fit_freeform
 from .io import load_mesh, load_points, save_mesh, save_points
 from .lattices import *  # noqa: F403
 from .lattices import __all__ as _lattices_all
@@ -51,6 +52,7 @@ __all__ = [
     "Curvatures",
     "Event",
     "FitResult",
+    "FreeformModel",
     "Mesh",
     "Model",
     "Param",
@@ -62,6 +64,7 @@ __all__ = [
     "distance_error",
     "div",
     "fit",
+    "fit_freeform",
     "fmm_distance",
     "gaussian_curvature",
     "grad",
@@ -85,6 +88,7 @@ __all__ = [
     "save_mesh",
     "save_points",
     "sdf",
+    "surface_distance",
     "true_distance",
     "value_and_grad",
     *_convolution_all,

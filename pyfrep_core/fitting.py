@@ -1,7 +1,9 @@
 """Fitting a model's named, bounded parameters to a point cloud (paper section 5.4).
 
-The error of fit is the paper's ``E(p) = 1/N sum_i f(x_i; p)^2``.  :func:`fit` minimizes it in
-up to three stages:
+The error of fit is the paper's ``E(p) = 1/N sum_i f(x_i; p)^2`` (paper eq. E(p)); for measured
+data the residual may be the geometric distance ``f / |grad f|`` (the paper's delta_1) and the loss
+robust to outliers (:mod:`pyfrep_core.residuals`), and the part's pose may be fitted with its shape
+(:mod:`pyfrep_core.pose`).  :func:`fit` minimizes the loss in up to three stages:
 
 1. ``"evolution"``: regularized evolution (Real et al. 2019) in the normalized parameter box,
    a global search that finds the basin of the minimum (``E`` is very oscillatory in the rod
@@ -11,6 +13,12 @@ up to three stages:
    ``f(x_i; p)`` with the Jacobian ``df(x_i)/dp`` by per-sample reverse-mode autodiff (the
    kernel's one per-point parameter derivative, :func:`pyfrep_core.diff.param_grad`), since E
    is a sum of squares: it converges quadratically to the minimum instead of jittering around it.
+   With a robust loss the polish is iteratively reweighted least squares: the same bounded least
+   squares on ``sqrt(w_i) r_i``, the weights and the noise scale re-estimated between rounds.
+
+Several starts (``starts=k``: pose candidates from :func:`pyfrep_core.pose.initial_pose` times
+random shape draws) run through the evolution and Adam stages together, as one batch of parameter
+sets (one model call per step for all of them); the best is polished.
 
 >>> from pyfrep_core import model, Param, sphere, sample_surface
 >>> @model(bounds=((-2,) * 3, (2,) * 3), r=Param(1.0, 0.5, 1.5), cx=Param(0.0, -0.5, 0.5))
@@ -26,6 +34,7 @@ from __future__ import annotations
 
 import math
 import time
+import warnings
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -36,12 +45,23 @@ import torch
 from ._array import as_tensor, check_finite, check_option, check_points
 from ._threads import intra_op_threads
 from .diff import _param_jacobian
+from .evaluate import call_sets, evaluate
 from .model import Model
+from .pose import initial_pose, is_posed, posed
 from .progress import Event, Progress, StopFlag
+from .residuals import LOSSES, RESIDUALS, geometric, inliers, objective, robust_scale, value_and_gradnorm, weights
 
-__all__ = ["FitResult", "fit", "fit_error"]
+__all__ = ["FitResult", "IdentifiabilityWarning", "fit", "fit_error"]
 
 STAGES = ("evolution", "sgd", "polish")
+IRLS_ROUNDS = 12  # reweighting rounds of a robust polish at most (the weights settle in 3-6)
+IRLS_TOL = 1e-7  # rounds stop when no parameter moves more than this fraction of its range
+RANK_RTOL = 1e-9  # singular values of the column-scaled Jacobian below this fraction of the largest are 0
+POSE_SPREAD = 0.02  # std of a pose population around its start, in the unit box
+
+
+class IdentifiabilityWarning(RuntimeWarning):
+    """The data cannot determine some parameters: the least-squares Jacobian is rank-deficient."""
 
 
 @dataclass
@@ -62,7 +82,28 @@ class FitResult:
         (heteroscedasticity-robust sandwich covariance of the least-squares estimate); empty
         without a polish.
     covariance : (P, P) numpy covariance of the free parameters (order of ``free``), or None.
+        Where the Jacobian is rank-deficient it is the pseudo-inverse's (rows and columns of the
+        ``unidentifiable`` parameters are meaningless).
     free : names of the fitted (not fixed) parameters.
+    residual : "algebraic" (f) or "geometric" (f / |grad f|), the residual minimized.
+    loss_function : "l2", "huber", "cauchy" or "trimmed" (``loss`` is its final value).
+    loss_scale : the noise scale s of a robust loss (given, or 1.4826 median |r| at the end), in the
+        residual's units; None for l2.
+    rms, max_distance : root mean square and largest geometric distance |f| / |grad f| over the
+        inliers, in the points' (the model's) units.
+    inliers : (N,) bool numpy: |r| <= 3 s for a robust loss, every point for l2.
+    outlier_fraction : fraction of the points that are not inliers.
+    starts : one dict per start: ``start`` (parameters it began from), ``params`` (where it ended),
+        ``loss`` (its loss on a common subset of the points, or the polished loss), ``best`` (kept).
+    termination : why the least-squares polish ended (scipy's message, with the reweighting
+        rounds of a robust loss), or why there was no polish.
+    std_error_reason : "" when every free parameter has a standard error; else why some or all
+        are missing (no polish, stopped early, rank-deficient Jacobian naming the parameters).
+    unidentifiable : names of the parameters a rank-deficient Jacobian cannot determine (a
+        combination of them leaves every residual unchanged); an IdentifiabilityWarning names them.
+    units : the points' length unit when given (``units="mm"``), else None.
+    model : the model fitted: ``posed(model)`` when ``pose`` is on (its ``params`` include the pose).
+    points : (N, d) float64 numpy, the points fitted (from a mesh: its vertices, then area samples).
     """
 
     params: dict[str, float]
@@ -75,6 +116,25 @@ class FitResult:
     standard_errors: dict[str, float] = field(default_factory=dict)
     covariance: np.ndarray | None = None
     free: tuple[str, ...] = ()
+    residual: str = "algebraic"
+    loss_function: str = "l2"
+    loss_scale: float | None = None
+    rms: float = math.nan
+    max_distance: float = math.nan
+    inliers: np.ndarray | None = None
+    outlier_fraction: float = 0.0
+    starts: list[dict[str, Any]] = field(default_factory=list)
+    termination: str = ""
+    std_error_reason: str = ""
+    unidentifiable: list[str] = field(default_factory=list)
+    units: str | None = None
+    model: Model | None = field(default=None, repr=False)
+    points: np.ndarray | None = field(default=None, repr=False)
+
+    @property
+    def std_errors(self) -> dict[str, float]:
+        """Standard errors by name (the same dict as ``standard_errors``); see ``std_error_reason``."""
+        return self.standard_errors
 
     def __repr__(self) -> str:
         ps = ", ".join(f"{k}={v:.6g}" for k, v in self.params.items())
@@ -86,13 +146,23 @@ class _StopRequestedError(Exception):
 
 
 class _Problem:
-    """The free parameters of a model, their box, and batched evaluations of f on points."""
+    """The free parameters of a model, their box, the residual and loss, and batched evaluations."""
 
-    def __init__(self, model: Model, fixed: dict[str, float], box: dict[str, tuple]):
+    def __init__(
+        self,
+        model: Model,
+        fixed: dict[str, float],
+        box: dict[str, tuple],
+        residual: str = "algebraic",
+        loss: str = "l2",
+        loss_scale: float | None = None,
+    ):
         self.model, self.fixed = model, fixed
         self.free = [k for k in model.names if k not in fixed]
         self.lower = np.array([box[k][0] for k in self.free])
         self.upper = np.array([box[k][1] for k in self.free])
+        self.residual, self.loss, self.loss_scale = residual, loss, loss_scale
+        self._geometric = geometric(model.fn) if residual == "geometric" else None
 
     def to_params(self, u: torch.Tensor) -> torch.Tensor:
         """Normalized coordinates u in [0, 1]^P -> parameter values (same shape)."""
@@ -110,8 +180,24 @@ class _Problem:
         return values
 
     def f(self, x: torch.Tensor, p: torch.Tensor) -> torch.Tensor:
-        """f(x; p): p (P,) -> (N,), p (B, P) -> (B, N)."""
-        return self.model(x, **self.named(p))
+        """The residuals r(x; p) (f, or f / |grad f| when geometric): p (P,) -> (N,), p (B, P) -> (B, N)."""
+        if self._geometric is None:
+            return self.model(x, **self.named(p))
+        scalars, batched = {}, {}
+        for k, v in self.named(p).items():
+            if isinstance(v, torch.Tensor) and v.ndim == 1:
+                batched[k] = v.to(x.dtype)
+            elif isinstance(v, torch.Tensor):
+                scalars[k] = v.to(x.dtype)
+            else:
+                scalars[k] = torch.tensor(float(v), dtype=x.dtype, device=x.device)
+        if batched:
+            return call_sets(self._geometric, x, scalars, batched, self.model.__name__)
+        return evaluate(self._geometric, x, scalars, label=self.model.__name__)
+
+    def objective(self, r: torch.Tensor) -> torch.Tensor:
+        """The loss of residuals (..., N) over the last axis (mean r^2 for l2)."""
+        return objective(r, self.loss, self.loss_scale)
 
     def as_dict(self, p: Sequence[float]) -> dict[str, float]:
         values = {k: float(v) for k, v in zip(self.free, p)}
@@ -161,8 +247,12 @@ def _check_inputs(model: Any, points: Any, fixed, init, param_bounds, stages) ->
     return x, stages, box
 
 
-def fit_error(model: Model, points: Any, params: Mapping[str, float] | None = None) -> np.ndarray:
+def fit_error(
+    model: Model, points: Any, params: Mapping[str, float] | None = None, residual: str = "algebraic"
+) -> np.ndarray:
     """Per-point residuals |f(x_i; p)| (float64 numpy, evaluated in chunks), the paper's Fig. 7 colours.
+
+    ``residual="geometric"``: the distances |f| / |grad f| (paper eq. delta1), in the points' units.
 
     Examples
     --------
@@ -179,6 +269,11 @@ def fit_error(model: Model, points: Any, params: Mapping[str, float] | None = No
     check_points(x, model.dim, "points")
     check_finite(x, "points")
     values = model.check(**dict(params or {}))
+    residual = check_option(residual, "residual", "fit_error", "choice", choices=RESIDUALS)
+    if residual == "geometric":
+        scalars = {k: torch.tensor(float(v), dtype=torch.float64) for k, v in values.items()}
+        with torch.no_grad():
+            return evaluate(geometric(model.fn), x, scalars, label=model.__name__).abs().cpu().numpy()
     with torch.no_grad():
         out = model(x, **values).abs()  # in chunks within the memory budget of one call (pyfrep_core.evaluate)
     return out.cpu().numpy()
@@ -191,60 +286,88 @@ def _evolution(prob: _Problem, x: torch.Tensor, gen: torch.Generator, cfg: dict,
     ``children`` tournaments are held on the current population, their mutated winners are
     evaluated together in one batched call (B parameter sets -> f of shape (B, M)), and each
     child replaces the oldest individual (the population is a ring buffer ordered by age).
-    With ``children = 1`` this is exactly the sequential algorithm.  Scores are E(p) on one
+    With ``children = 1`` this is exactly the sequential algorithm.  Scores are the loss on one
     random subset of ``subsample`` points, fixed for the whole run so that scores compare; the
     best ``finalists`` of the history are then re-scored on a fresh subset for the final choice.
+
+    ``init_u`` None or (P,): one population (seeded with it).  (S, P): S independent populations,
+    one per start, evolved side by side (every generation's children of all of them in one call);
+    in the pose coordinates (``cfg["pose_dims"]``) their members start around the start.
+    Returns the best (S, P) (or (P,)) and its final scores (S,) (or 0-d).
     """
     pop_size, sample_size = cfg["population_size"], cfg["sample_size"]
     k = min(cfg["children"], pop_size)  # a generation replaces at most the whole population
     n_points, n_free, dev, dt = x.shape[0], len(prob.free), x.device, x.dtype
     m = min(cfg["subsample"], n_points)
     xs = x[torch.randperm(n_points, generator=gen, device="cpu")[:m].to(dev)]
+    single = init_u is None or torch.as_tensor(init_u).ndim == 1
+    starts = None if init_u is None else torch.as_tensor(init_u, dtype=dt).reshape(-1, n_free)
+    n_pop = 1 if starts is None else starts.shape[0]
 
-    def score(u: torch.Tensor) -> torch.Tensor:
+    def score(u: torch.Tensor) -> torch.Tensor:  # (S, K, P) -> (S, K)
         with torch.no_grad():
-            e = prob.f(xs, prob.to_params(u)).square().mean(-1)
+            e = prob.objective(prob.f(xs, prob.to_params(u.reshape(-1, n_free)))).reshape(u.shape[:-1])
         return torch.nan_to_num(e, nan=math.inf)
 
-    pop = torch.rand(pop_size, n_free, generator=gen, dtype=dt).to(dev)
-    if init_u is not None:
-        pop[0] = torch.as_tensor(init_u, dtype=dt, device=dev)
+    pop = torch.rand(n_pop, pop_size, n_free, generator=gen, dtype=dt).to(dev)
+    if starts is not None:
+        pose_dims = cfg.get("pose_dims") or []
+        if pose_dims:  # a pose far from its start is noise: the members spread around it there
+            near = starts[:, None, pose_dims] + POSE_SPREAD * torch.randn(
+                n_pop, pop_size, len(pose_dims), generator=gen, dtype=dt
+            )
+            pop[:, :, pose_dims] = near.clamp(0.0, 1.0).to(dev)
+        pop[:, 0] = starts.to(dev)
     scores = score(pop)
     hist_u, hist_s = [pop], [scores]
-    oldest = 0  # ring buffer: pop[oldest] is the oldest individual
+    oldest = 0  # ring buffer: pop[:, oldest] is the oldest individual
     n_children = max(0, cfg["cycles"] - pop_size)  # Real et al.: the history holds `cycles` models
     n_gen = math.ceil(n_children / k)
     lo_s, hi_s = math.log(cfg["mutation"][0]), math.log(cfg["mutation"][1])
     best = float(scores.min())
+
+    def best_params() -> dict[str, float]:
+        flat = scores.reshape(-1).argmin()
+        return prob.as_dict(prob.to_params(pop.reshape(-1, n_free)[flat]).tolist())
+
     with report(n_gen, "evolution") as progress:
         for g in range(n_gen):
             b = min(k, n_children - g * k)
             # tournaments: `sample_size` random members (with replacement), the fittest is the parent
-            entrants = torch.randint(pop_size, (b, sample_size), generator=gen).to(dev)
-            parents = entrants.gather(1, scores[entrants].argmin(1, keepdim=True)).squeeze(1)
+            entrants = torch.randint(pop_size, (n_pop, b, sample_size), generator=gen).to(dev)
+            entrant_scores = scores.gather(1, entrants.reshape(n_pop, -1)).reshape(n_pop, b, sample_size)
+            parents = entrants.gather(2, entrant_scores.argmin(2, keepdim=True)).squeeze(2)
             # mutation: Gaussian step in the unit box, its scale log-uniform per child (coarse and fine moves)
-            sigma = torch.exp(lo_s + (hi_s - lo_s) * torch.rand(b, 1, generator=gen, dtype=dt)).to(dev)
-            step = sigma * torch.randn(b, n_free, generator=gen, dtype=dt).to(dev)
-            children = (pop[parents] + step).clamp(0.0, 1.0)
+            sigma = torch.exp(lo_s + (hi_s - lo_s) * torch.rand(n_pop, b, 1, generator=gen, dtype=dt)).to(dev)
+            step = sigma * torch.randn(n_pop, b, n_free, generator=gen, dtype=dt).to(dev)
+            children = (pop.gather(1, parents[..., None].expand(n_pop, b, n_free)) + step).clamp(0.0, 1.0)
             child_scores = score(children)
             slots = (oldest + torch.arange(b, device=dev)) % pop_size  # each child replaces the oldest
-            pop[slots], scores[slots] = children, child_scores
+            pop[:, slots], scores[:, slots] = children, child_scores
             oldest = (oldest + b) % pop_size
             hist_u.append(children)
             hist_s.append(child_scores)
             best = min(best, float(child_scores.min()))
-            if progress.update(g, best, lambda: prob.as_dict(prob.to_params(pop[scores.argmin()]).tolist())):
+            if progress.update(g, best, best_params):
                 break
-    hist_u, hist_s = torch.cat(hist_u), torch.cat(hist_s)
-    finalists = hist_u[hist_s.topk(min(cfg["finalists"], hist_s.numel()), largest=False).indices]
+    hist_u, hist_s = torch.cat(hist_u, 1), torch.cat(hist_s, 1)
+    top = hist_s.topk(min(cfg["finalists"], hist_s.shape[1]), dim=1, largest=False).indices
+    finalists = hist_u.gather(1, top[..., None].expand(-1, -1, n_free))
     m2 = min(cfg["final_subsample"], n_points)
     xs = x[torch.randperm(n_points, generator=gen, device="cpu")[:m2].to(dev)]
     final = score(finalists)
-    return finalists[final.argmin()], progress.stopped, progress.losses
+    pick = final.argmin(1)
+    chosen = finalists[torch.arange(n_pop, device=dev), pick]
+    chosen_scores = final[torch.arange(n_pop, device=dev), pick]
+    if single:
+        return chosen[0], chosen_scores[0], progress.stopped, progress.losses
+    return chosen, chosen_scores, progress.stopped, progress.losses
 
 
 def _sgd(prob: _Problem, x: torch.Tensor, gen: torch.Generator, cfg: dict, u0: torch.Tensor, report) -> tuple:
-    """Adam on random batches of E~(p) = mean over a batch of f(x_i; p)^2, in the unit box (projected)."""
+    """Adam on random batches of E~(p) = mean over a batch of f(x_i; p)^2 (or the robust loss of the
+    residuals), in the unit box (projected).  ``u0`` (P,), or (S, P) for S starts at once: their
+    losses are summed, so each start gets its own gradient (Adam is elementwise) from one batched call."""
     n_points = x.shape[0]
     bs = min(cfg["batch_size"], n_points)
     per_epoch = math.ceil(n_points / bs)
@@ -260,7 +383,8 @@ def _sgd(prob: _Problem, x: torch.Tensor, gen: torch.Generator, cfg: dict, u0: t
             for batch in order.tensor_split(per_epoch):  # near-equal random batches
                 xb = x[batch]
                 opt.zero_grad(set_to_none=True)
-                loss = prob.f(xb, prob.to_params(u)).square().mean()
+                per_start = prob.objective(prob.f(xb, prob.to_params(u)))
+                loss = per_start.sum()
                 loss.backward()
                 opt.step()
                 sched.step()
@@ -268,7 +392,12 @@ def _sgd(prob: _Problem, x: torch.Tensor, gen: torch.Generator, cfg: dict, u0: t
                     u.clamp_(0.0, 1.0)
                 losses.append(loss.detach())
                 epoch_loss += loss.detach()
-            if progress.update(epoch, float(epoch_loss) / per_epoch, lambda: prob.as_dict(prob.to_params(u).tolist())):
+
+            def current(u: torch.Tensor = u, last: torch.Tensor = per_start) -> dict[str, float]:
+                best = u if u.ndim == 1 else u[last.detach().argmin()]
+                return prob.as_dict(prob.to_params(best).tolist())
+
+            if progress.update(epoch, float(epoch_loss) / per_epoch, current):
                 break
     history = torch.stack(losses).tolist() if losses else []
     return u.detach(), progress.stopped, history
@@ -288,72 +417,179 @@ def _jacobian(prob: _Problem, x: torch.Tensor, p: torch.Tensor) -> torch.Tensor:
     return _param_jacobian(prob.model.fn, x, values, prob.free, label=prob.model.__name__)
 
 
-def _polish(prob: _Problem, x: torch.Tensor, u0: torch.Tensor, cfg: dict, report) -> tuple:
-    """Bounded least squares on the residuals f(x_i; p): scipy's 'trf' with an autodiff Jacobian."""
+def _polish(prob: _Problem, x: torch.Tensor, u0: torch.Tensor, cfg: dict, report) -> dict[str, Any]:
+    """Bounded least squares on the residuals: scipy's 'trf' with an autodiff Jacobian.
+
+    Geometric residuals ``r = f / |grad f|`` take the Jacobian ``(df/dp) / |grad f|``: the term
+    ``-f d|grad f|/dp / |grad f|^2`` it leaves out is proportional to f, so it vanishes on the
+    surface, where the fit ends (Gauss-Newton leaves out the residual's second derivatives
+    likewise); it would cost second derivatives of f at every point.
+
+    A robust loss is minimized by iteratively reweighted least squares: each round solves the
+    weighted problem ``sqrt(w_i) r_i`` with the weights w(r / s) of the previous round's residuals
+    (:func:`pyfrep_core.residuals.weights`) and the scale s re-estimated from them (unless given),
+    until no parameter moves more than ``IRLS_TOL`` of its range.  l2 is one round with w = 1.
+    """
     from scipy.optimize import least_squares
 
     x64 = x.to(torch.float64)
     losses: list[float] = []
     p0 = np.clip(prob.to_params(u0.to(torch.float64)).cpu().numpy(), prob.lower, prob.upper)
-    last: dict[str, np.ndarray] = {}
+    last: dict[str, Any] = {}
+    robust = prob.loss != "l2"
+    sw: list[np.ndarray | None] = [None]  # sqrt of the current round's weights (None: all 1)
+    cache: dict[bytes, tuple[np.ndarray, np.ndarray | None]] = {}
+    budget = cfg["polish_iters"]
 
-    with report(cfg["polish_iters"], "polish", every=1) as progress:
+    def raw(p: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        """Residuals r (N,) and, for geometric residuals, |grad f| (N,) at p (the last few cached)."""
+        key = p.tobytes()
+        if key not in cache:
+            pt = torch.as_tensor(p, device=x.device)
+            if prob.residual == "geometric":
+                values = {
+                    k: torch.as_tensor(v, dtype=torch.float64, device=x.device) for k, v in prob.named(pt).items()
+                }
+                with torch.no_grad():
+                    f, g = value_and_gradnorm(prob.model.fn, x64, values)
+                g = g.clamp_min(torch.finfo(g.dtype).tiny)
+                cache[key] = ((f / g).cpu().numpy(), g.cpu().numpy())
+            else:
+                cache[key] = (_residuals(prob, x64, pt).cpu().numpy(), None)
+            while len(cache) > 4:
+                cache.pop(next(iter(cache)))
+        return cache[key]
+
+    def raw_jac(p: np.ndarray) -> np.ndarray:
+        j = _jacobian(prob, x64, torch.as_tensor(p, device=x.device)).cpu().numpy()
+        g = raw(p)[1]
+        return j if g is None else j / g[:, None]
+
+    def loss_of(r: np.ndarray) -> float:
+        return float(prob.objective(torch.from_numpy(r)))
+
+    with report(budget, "polish", every=1) as progress:
 
         def fun(p: np.ndarray) -> np.ndarray:
-            r = _residuals(prob, x64, torch.as_tensor(p, device=x.device)).cpu().numpy()
-            losses.append(float(np.mean(r * r)))
+            r = raw(p)[0]
+            losses.append(loss_of(r))
             if losses[-1] <= min(losses):  # the best point so far: what an early stop returns
                 last["p"], last["r"] = p.copy(), r
             best = last["p"]
             # every evaluation is reported (there are few), with the best loss and parameters so far
             if progress.update(len(losses) - 1, min(losses), lambda: prob.as_dict(best)):
                 raise _StopRequestedError
-            return r
+            return r if sw[0] is None else sw[0] * r
 
         def jac(p: np.ndarray) -> np.ndarray:
-            return _jacobian(prob, x64, torch.as_tensor(p, device=x.device)).cpu().numpy()
+            j = raw_jac(p)
+            return j if sw[0] is None else sw[0][:, None] * j
 
-        stopped = False
+        def reweight(r: np.ndarray) -> float:
+            rt = torch.from_numpy(r)
+            s = float(robust_scale(rt)) if prob.loss_scale is None else prob.loss_scale
+            sw[0] = np.sqrt(weights(rt, prob.loss, s).numpy())
+            return s
+
+        stopped, rounds, message, settled = False, 0, "", not robust
+        p, scale = p0, None
+        jmat = rvec = None
         try:
-            sol = least_squares(
-                fun,
-                p0,
-                jac=jac,
-                bounds=(prob.lower, prob.upper),
-                method="trf",
-                x_scale=prob.upper - prob.lower,
-                xtol=cfg["xtol"],
-                ftol=cfg["xtol"],
-                gtol=cfg["xtol"],
-                max_nfev=cfg["polish_iters"],
-            )
-            p, r = sol.x, sol.fun
-            jmat = sol.jac
+            if robust:
+                scale = reweight(fun(p0))  # the weights of the first round (sw is still None: raw residuals)
+            while True:
+                rounds += 1
+                sol = least_squares(
+                    fun,
+                    p,
+                    jac=jac,
+                    bounds=(prob.lower, prob.upper),
+                    method="trf",
+                    x_scale=prob.upper - prob.lower,
+                    xtol=cfg["xtol"],
+                    ftol=cfg["xtol"],
+                    gtol=cfg["xtol"],
+                    max_nfev=max(1, budget - len(losses)),
+                )
+                message = sol.message
+                moved = float(np.max(np.abs(sol.x - p) / (prob.upper - prob.lower)))
+                p = sol.x
+                if not robust:
+                    jmat, rvec = sol.jac, sol.fun
+                    break
+                scale = reweight(raw(p)[0])
+                if moved <= IRLS_TOL and rounds > 1:
+                    settled = True
+                    break
+                if rounds >= IRLS_ROUNDS or len(losses) >= budget:
+                    break
         except _StopRequestedError:
             stopped = True
-            p, r = last["p"], last["r"]
+            p = last["p"]
+            message = "stopped by the callback or the stop flag"
+        if jmat is None:
             jmat = jac(p)
-    cov = _sandwich_covariance(np.asarray(jmat), np.asarray(r))
-    return p, stopped, losses, cov
+            rvec = raw(p)[0] if sw[0] is None else sw[0] * raw(p)[0]
+    if robust and not stopped:
+        state = "the weights settled" if settled else "the weights were still changing"
+        message = f"{message} (reweighted least squares: {rounds} round{'s' * (rounds != 1)}, {state})"
+    cov, null, zero_cols = _covariance(np.asarray(jmat), np.asarray(rvec))
+    return {
+        "p": p,
+        "stopped": stopped,
+        "losses": losses,
+        "covariance": cov,
+        "null": null,
+        "zero": zero_cols,
+        "termination": message,
+        "scale": scale,
+    }
 
 
-def _sandwich_covariance(j: np.ndarray, r: np.ndarray) -> np.ndarray | None:
-    """Covariance of a least-squares estimate, robust to per-point noise levels (White's HC0):
-    ``(J^T J)^-1 J^T diag(r^2) J (J^T J)^-1``.  None when J^T J is singular."""
-    jtj = j.T @ j
-    try:
-        inv = np.linalg.inv(jtj)
-    except np.linalg.LinAlgError:
-        return None
-    meat = (j * (r * r)[:, None]).T @ j
-    return inv @ meat @ inv
+def _covariance(j: np.ndarray, r: np.ndarray) -> tuple[np.ndarray | None, list[int], list[int]]:
+    """Covariance of a least-squares estimate, robust to per-point noise levels (White's HC0),
+    ``(J^T J)^-1 J^T diag(r^2) J (J^T J)^-1``, and the parameters the data cannot determine.
+
+    With weighted rows ``sqrt(w) J`` and ``sqrt(w) r`` it is the M-estimator's sandwich.  The
+    columns are scaled to unit length first (so that the parameters' units do not matter), then
+    J = U S V^T: singular values below ``RANK_RTOL`` times the largest span directions along which
+    the residuals do not change; a parameter with a component above 0.05 in them is unidentifiable
+    (returned by index, those with an all-zero column separately).  The inverse is the
+    pseudo-inverse over the other directions, so the identifiable parameters keep their errors.
+    """
+    n_par = j.shape[1]
+    if n_par == 0 or not np.isfinite(j).all() or not np.isfinite(r).all():
+        return None, list(range(n_par)), []
+    norms = np.linalg.norm(j, axis=0)
+    zero = [i for i in range(n_par) if not norms[i] > 0]
+    d = np.where(norms > 0, 1.0 / np.where(norms > 0, norms, 1.0), 0.0)
+    js = j * d
+    _, sv, vt = np.linalg.svd(js, full_matrices=False)
+    keep = sv > RANK_RTOL * (sv.max() if sv.size else 0.0)
+    null_space = vt[~keep]
+    weight = np.sqrt((null_space**2).sum(0)) if len(null_space) else np.zeros(n_par)
+    null = sorted(set(zero) | {i for i in range(n_par) if weight[i] > 0.05})
+    if not keep.any():
+        return None, null, zero
+    v = vt[keep].T
+    bread = (v / sv[keep] ** 2) @ v.T  # (Js^T Js)^+
+    meat = (js * (r * r)[:, None]).T @ js
+    cov_s = bread @ meat @ bread
+    return cov_s * d[:, None] * d[None, :], null, zero
 
 
 def fit(
     model: Model,
     points: Any,
     *,
-    stages: Sequence[str] = STAGES,
+    pose: bool | str = False,
+    residual: str = "auto",
+    loss: str = "l2",
+    loss_scale: float | None = None,
+    starts: int | None = None,
+    units: str | None = None,
+    mesh_samples: int = 5000,
+    stages: Sequence[str] | None = None,
     fixed: Mapping[str, float] | None = None,
     init: Mapping[str, float] | None = None,
     param_bounds: Mapping[str, tuple[float, float]] | None = None,
@@ -368,7 +604,7 @@ def fit(
     epochs: int = 100,
     batch_size: int = 16384,
     lr: float = 1e-3,
-    polish_iters: int = 50,
+    polish_iters: int | None = None,
     xtol: float = 1e-10,
     dtype: torch.dtype = torch.float32,
     num_threads: int | None = 1,
@@ -387,9 +623,32 @@ def fit(
     Parameters
     ----------
     model : Model with named, bounded parameters (``@model``).
-    points : (N, dim) array or tensor of surface samples (length units).
+    points : the data: an (N, dim) array or tensor of surface samples (length units); a
+        :class:`~pyfrep_core.Mesh` (its vertices and ``mesh_samples`` points drawn by area); a
+        :class:`~pyfrep_core.io.PointCloud`; or the path of a mesh file (.stl .obj .ply .off .vtk,
+        read by :func:`~pyfrep_core.load_mesh`) or of a point file (.xyz, or a .ply without faces,
+        :func:`~pyfrep_core.load_points`).
+    pose : fit the part's pose with its shape: True (rigid: ``tx, ty, tz, rx, ry, rz``) or
+        "scale" (and a uniform scale ``s``), through :func:`pyfrep_core.pose.posed` with the
+        translation range set from the data; starts from :func:`pyfrep_core.pose.initial_pose`.
+        A model already posed gets the starts without being posed again.
+    residual : "algebraic" (f, the paper's E(p)), "geometric" (f / |grad f|, Taubin's distance,
+        the paper's delta_1: a length, independent of how f is scaled) or "auto": geometric when
+        the points come with a unit (``units``) or from a file, a Mesh or a PointCloud (measured
+        data), algebraic for a bare array (the paper's synthetic protocol, unchanged).
+    loss : "l2", "huber", "cauchy" or "trimmed" (:mod:`pyfrep_core.residuals`); a robust loss
+        bounds the pull of outliers, and ``inliers`` marks the points within 3 scales.
+    loss_scale : the noise scale s of a robust loss, in the residual's units; None: estimated
+        from the residuals (1.4826 x their median absolute value) and re-estimated as the fit moves.
+    starts : number of starts: pose candidates (when ``pose``) first, then the same with random
+        shape parameters; evolution and Adam run for all of them together (one batch of parameter
+        sets), the best one is polished; every start is summarized in ``result.starts``.  None:
+        every pose candidate once with ``pose``, else 1.
+    units : the points' length unit ("mm"), carried to the result (and choosing the geometric
+        residual under "auto").
+    mesh_samples : points drawn by area on a mesh given as data (its vertices are kept as well).
     stages : stages to run, in order, among "evolution", "sgd", "polish" (e.g. ("sgd",) for the
-        paper's SGD alone).
+        paper's SGD alone).  None: all three.
     fixed : name -> value of parameters held fixed (not fitted).
     init : name -> starting value: joins the initial population, or starts SGD/polish when no
         evolution runs (other free parameters then start at random, from ``seed``).
@@ -404,7 +663,8 @@ def fit(
         subset of this size; the best becomes the start of the next stage.
     epochs, batch_size, lr : Adam on random batches; an epoch is one pass over the points; the
         learning rate (in the unit box) decays linearly to 0.
-    polish_iters, xtol : function evaluations and tolerance of the least-squares polish.
+    polish_iters, xtol : function evaluations (None: 50, 200 with a robust loss, shared by the
+        reweighting rounds) and tolerance of the least-squares polish.
     dtype : dtype of the evolution and SGD stages (the polish and residuals use float64).
     num_threads : torch intra-op threads during the fit (restored afterwards); None keeps the
         current setting.  The fit's tensors are small (a batch, a subsample), so one thread is as
@@ -421,9 +681,50 @@ def fit(
     Raises
     ------
     TypeError : ``model`` is not a Model; ``fixed``/``init``/``param_bounds`` names an undeclared parameter.
-    ValueError : points empty, of the wrong shape or not finite; inverted bounds; values out of range.
+    ValueError : points empty, of the wrong shape or not finite; inverted bounds; values out of range;
+        an unknown residual, loss or file format.
+
+    Warns
+    -----
+    IdentifiabilityWarning : the Jacobian at the fit is rank-deficient; the message names the
+        parameters the data cannot determine (they are also in ``result.unidentifiable``).
+
+    Examples
+    --------
+    A ball measured off-centre, with one stray point: the pose is found from the cloud, the stray
+    point is an outlier.
+
+    >>> from pyfrep_core import model, Param, block
+    >>> @model(bounds=((-1,) * 3, (1,) * 3), a=Param(1.0, 0.5, 1.5))
+    ... def cube(x, a):
+    ...     return block(x, vertex=(-a / 2, -a / 2, -a / 2), dx=a, dy=a, dz=a)
+    >>> rng = np.random.default_rng(0)
+    >>> pts = rng.uniform(-0.6, 0.6, (400, 3))
+    >>> pts[np.arange(400), rng.integers(0, 3, 400)] = rng.choice([-0.6, 0.6], 400)  # on the faces
+    >>> pts = np.vstack([pts + (3.0, 1.0, 0.0), [[3.0, 1.0, 0.0]]])      # moved, and one stray point
+    >>> res = fit(cube, pts, pose=True, residual="geometric", loss="cauchy", stages=("polish",), progress=False)
+    >>> round(res.params["a"], 6), [round(res.params[k], 6) for k in ("tx", "ty")], int((~res.inliers).sum())
+    (1.2, [3.0, 1.0], 1)
     """
     fixed, init, param_bounds = dict(fixed or {}), dict(init or {}), dict(param_bounds or {})
+    if not isinstance(model, Model):
+        raise TypeError(f"model must be a Model declared with @model (named, bounded parameters), got {model!r}")
+    points, source = _load_data(points, model.dim, mesh_samples)
+    residual = check_option(residual, "residual", "fit", "choice", choices=(*RESIDUALS, "auto"))
+    loss = check_option(loss, "loss", "fit", "choice", choices=LOSSES)
+    loss_scale = check_option(loss_scale, "loss_scale", "fit", positive=True, none=True)
+    starts = check_option(starts, "starts", "fit", "int", positive=True, none=True)
+    pose = check_option(pose, "pose", "fit", "choice", choices=(False, True, "rigid", "scale"))
+    if units is not None and not isinstance(units, str):
+        raise TypeError(f"fit: units must be a string such as 'mm' or None, got {units!r}")
+    if residual == "auto":
+        residual = "geometric" if (units is not None or source != "array") else "algebraic"
+    if polish_iters is None:
+        polish_iters = 50 if loss == "l2" else 200
+    stages = STAGES if stages is None else stages
+    posing = bool(pose) or is_posed(model)
+    if pose and not is_posed(model):
+        model = _posed_for(model, points, scale=pose == "scale")
     x, stages, box = _check_inputs(model, points, fixed, init, param_bounds, stages)
     given = dict(cycles=cycles, population_size=population_size, sample_size=sample_size, children=children,
                  subsample=subsample, final_subsample=final_subsample, finalists=finalists, epochs=epochs,
@@ -451,18 +752,135 @@ def fit(
         raise TypeError(f"fit: callback must be callable or None, got {callback!r}")
     if stop is not None and not callable(getattr(stop, "is_set", None)):
         raise TypeError(f"fit: stop must have an is_set() method (a threading.Event) or be None, got {stop!r}")
-    prob = _Problem(model, {k: float(v) for k, v in fixed.items()}, box)
+    prob = _Problem(model, {k: float(v) for k, v in fixed.items()}, box, residual, loss, loss_scale)
     gen = torch.Generator().manual_seed(seed if seed is not None else int(torch.randint(2**62, ()).item()))
+    candidates = _pose_candidates(model, x, init, fixed) if posing else []
+    cfg["pose_dims"] = [j for j, k in enumerate(prob.free) if k in model.pose_names] if posing else []
 
     def report(total: int, stage: str, every: int = every) -> Progress:
         return _LazyProgress(total, stage, callback, every, stop, progress)
 
     with intra_op_threads(num_threads):
-        return _run_stages(prob, x, stages, init, cfg, gen, report)
+        result = _run_stages(prob, x, stages, init, cfg, gen, report, candidates, starts)
+    result.units = units
+    return result
 
 
-def _run_stages(prob: _Problem, x: torch.Tensor, stages: tuple, init: dict, cfg: dict, gen, report) -> FitResult:
-    """The stages in order, each starting where the previous one ended (in the unit box)."""
+def _load_data(data: Any, dim: int, mesh_samples: int) -> tuple[Any, str]:
+    """The points to fit, and where they came from: "array", "mesh", "cloud" or "file"."""
+    import os
+
+    from .io import MESH_FORMATS, POINT_FORMATS, PointCloud, load_mesh, load_points
+    from .mesh import Mesh
+    from .sampling import sample_mesh
+
+    source = "array"
+    if isinstance(data, str | os.PathLike):
+        ext = os.path.splitext(str(data))[1].lower()
+        if ext in MESH_FORMATS:
+            try:
+                data = load_mesh(data)
+            except ValueError as err:
+                if ext not in POINT_FORMATS or "no triangles" not in str(err):
+                    raise
+                data = load_points(data)  # a PLY of vertices only: a point cloud
+        elif ext in POINT_FORMATS:
+            data = load_points(data)
+        else:
+            known = ", ".join(sorted(set(MESH_FORMATS) | set(POINT_FORMATS)))
+            raise ValueError(f"fit: cannot tell the format of {str(data)!r} from its extension; supported: {known}")
+        source = "file"
+    if isinstance(data, Mesh):
+        n = check_option(mesh_samples, "mesh_samples", "fit", "int", minimum=0)
+        parts = [data.vertices]
+        if n > 0 and not data.is_empty():
+            parts.append(sample_mesh(data, n, np.random.default_rng(0)))
+        data, source = np.concatenate(parts), "mesh" if source == "array" else source
+    elif isinstance(data, PointCloud):
+        data, source = data.points, "cloud" if source == "array" else source
+    if source != "array" and dim == 2:
+        raise ValueError("fit: a mesh or point file holds 3-D points; the model is planar (dim=2)")
+    return data, source
+
+
+def _posed_for(model: Model, points: Any, scale: bool) -> Model:
+    """``posed(model)`` with the translation range the data's box widened by its size on every side."""
+    x, _ = as_tensor(points, "points")
+    check_points(x, model.dim, "points")
+    check_finite(x, "points")
+    if x.shape[0] == 0:
+        raise ValueError("points is empty: nothing to fit")
+    pts = x.detach().cpu().to(torch.float64).numpy()
+    lo, hi = pts.min(0), pts.max(0)
+    size = np.maximum(hi - lo, 1e-12 * (1.0 + np.abs(hi)))
+    return posed(model, scale=scale, translation=(tuple(lo - size), tuple(hi + size)))
+
+
+def _pose_candidates(model: Model, x: torch.Tensor, init: dict, fixed: dict) -> list[dict[str, float]]:
+    """Starting poses: from ``init``/``fixed`` when they give the whole pose, else :func:`initial_pose`."""
+    names = model.pose_names
+    given = {**init, **fixed}
+    if all(k in given for k in names):
+        return [{k: float(given[k]) for k in names}]
+    base = model.pose_base
+    shape = {k: v for k, v in given.items() if k in base.params}
+    try:
+        candidates = initial_pose(x, base if base.dim == 3 else None, params=shape, scale=model.pose_scale)
+    except (ValueError, RuntimeError):  # the model's surface could not be sampled at these values
+        candidates = initial_pose(x, None, scale=model.pose_scale)
+    out = []
+    for c in candidates:
+        c = {k: float(np.clip(v, model.params[k].lower, model.params[k].upper)) for k, v in c.items()}
+        c.update({k: float(v) for k, v in given.items() if k in names})
+        out.append(c)
+    return out
+
+
+def _start_vectors(prob: _Problem, init: dict, gen: torch.Generator, candidates: list, starts: int | None):
+    """The starts in the unit box, (S, P) float64, or None for the single start of the paper's protocol.
+
+    Start i takes pose candidate ``i mod C``; its shape parameters are ``init`` or the declared
+    defaults on the first pass over the candidates, random draws (from the fit's seed) after.
+    """
+    n_cand = len(candidates)
+    k = starts if starts is not None else max(1, n_cand)
+    if k == 1 and n_cand == 0:
+        return None
+    defaults = prob.model.defaults()
+    rows = []
+    for i in range(k):
+        u = torch.rand(len(prob.free), generator=gen, dtype=torch.float64)
+        first_pass = i < max(1, n_cand)
+        for j, name in enumerate(prob.free):
+            value = None
+            if n_cand and name in candidates[i % n_cand]:
+                value = candidates[i % n_cand][name]
+            elif name in init:
+                value = init[name]
+            elif first_pass and n_cand:
+                value = defaults[name]
+            if value is not None:
+                u[j] = (float(value) - prob.lower[j]) / (prob.upper[j] - prob.lower[j])
+        rows.append(u.clamp(0.0, 1.0))
+    return torch.stack(rows)
+
+
+def _run_stages(
+    prob: _Problem,
+    x: torch.Tensor,
+    stages: tuple,
+    init: dict,
+    cfg: dict,
+    gen,
+    report,
+    candidates: list | None = None,
+    starts: int | None = None,
+) -> FitResult:
+    """The stages in order, each starting where the previous one ended (in the unit box).
+
+    With several starts, evolution and Adam run for all of them at once; before the polish (or at
+    the end) each is scored on one common subset of the points, and the best goes on.
+    """
     xw = x.detach().to(cfg["dtype"])
     # starting point in the unit box: init values, random for the rest
     u = torch.rand(len(prob.free), generator=gen, dtype=torch.float64)
@@ -470,44 +888,135 @@ def _run_stages(prob: _Problem, x: torch.Tensor, stages: tuple, init: dict, cfg:
         if k in init:
             u[j] = (float(init[k]) - prob.lower[j]) / (prob.upper[j] - prob.lower[j])
     init_u = u.clone() if init else None
+    many = _start_vectors(prob, init, gen, candidates or [], starts)
+    if many is not None:
+        u, init_u = many, many
+    first = u.clone()
     history: dict[str, list[float]] = {}
     timings: dict[str, float] = {}
-    standard_errors: dict[str, float] = {}
-    covariance = None
+    polished: dict[str, Any] | None = None
+    summaries: list[dict[str, Any]] = []
     stopped = False
     start = time.perf_counter()
+
+    def choose() -> torch.Tensor:
+        """Score every start on one subset (one batched call) and keep the best."""
+        m = min(cfg["final_subsample"], x.shape[0])
+        xs = xw[torch.randperm(x.shape[0], generator=gen)[:m].to(x.device)]
+        with torch.no_grad():
+            scores = prob.objective(prob.f(xs, prob.to_params(u.to(xw.dtype).to(x.device))))
+        scores = torch.nan_to_num(scores.to(torch.float64).cpu(), nan=math.inf)
+        best = int(scores.argmin())
+        for i in range(u.shape[0]):
+            summaries.append(
+                {
+                    "start": prob.as_dict(prob.to_params(first[i]).tolist()),
+                    "params": prob.as_dict(prob.to_params(u[i]).tolist()),
+                    "loss": float(scores[i]),
+                    "best": i == best,
+                }
+            )
+        return u[best]
+
     for stage in stages:
         t0 = time.perf_counter()
+        if stage == "polish" and u.ndim == 2:
+            u = choose()
         if stage == "evolution":
-            best, stopped, history[stage] = _evolution(prob, xw, gen, cfg, init_u, report)
+            best, _, stopped, history[stage] = _evolution(prob, xw, gen, cfg, init_u, report)
             u = best.to(torch.float64).cpu()
         elif stage == "sgd":
             uu, stopped, history[stage] = _sgd(prob, xw, gen, cfg, u.to(xw.dtype).to(x.device), report)
             u = uu.to(torch.float64).cpu()
         else:
-            p, stopped, history[stage], covariance = _polish(prob, x, u, cfg, report)
-            u = torch.as_tensor(prob.to_unit(p))
-            if covariance is not None:
-                standard_errors = {k: float(math.sqrt(max(covariance[j, j], 0.0))) for j, k in enumerate(prob.free)}
+            polished = _polish(prob, x, u, cfg, report)
+            stopped, history[stage] = polished["stopped"], polished["losses"]
+            u = torch.as_tensor(prob.to_unit(polished["p"]))
         timings[stage] = time.perf_counter() - t0
         if stopped:
             break
+    if u.ndim == 2:
+        u = choose()
     params = prob.as_dict(prob.to_params(u.to(torch.float64)).tolist())
     t0 = time.perf_counter()
-    residuals = fit_error(prob.model, x, params)
+    result = _summarize(prob, x, params, polished, stopped)
     timings["residuals"] = time.perf_counter() - t0
     timings["total"] = time.perf_counter() - start
+    if polished is not None and summaries:
+        best = next(s for s in summaries if s["best"])
+        best["params"], best["loss"], best["polished"] = dict(params), result.loss, True
+    result.history, result.timings, result.starts = history, timings, summaries
+    result.stages = tuple(s for s in stages if s in timings)
+    return result
+
+
+def _summarize(prob: _Problem, x: torch.Tensor, params: dict, polished: dict | None, stopped: bool) -> FitResult:
+    """Residuals, loss, inliers, distances and the standard errors (with their reasons) at ``params``."""
+    model = prob.model
+    if prob.residual == "algebraic":
+        signed = None
+        residuals = fit_error(model, x, params)
+    else:
+        with torch.no_grad():
+            signed = prob.f(x.to(torch.float64), torch.tensor([params[k] for k in prob.free], dtype=torch.float64))
+        signed = signed.cpu().numpy()
+        residuals = np.abs(signed)
+    r = torch.from_numpy(residuals)
+    scale = None
+    if prob.loss != "l2":
+        scale = prob.loss_scale if prob.loss_scale is not None else float(robust_scale(r))
+    loss = float(objective(r, prob.loss, scale))
+    mask = inliers(r, prob.loss, scale if scale is not None else 1.0).numpy()
+    distance = residuals if signed is not None else fit_error(model, x, params, residual="geometric")
+    kept = distance[mask]
+    free = tuple(prob.free)
+    standard_errors: dict[str, float] = {}
+    covariance, reason, null = None, "", []
+    termination = "no least-squares polish (stages without 'polish')"
+    if polished is not None:
+        termination = polished["termination"]
+        covariance = polished["covariance"]
+        null = [free[i] for i in polished["null"]]
+        if stopped:
+            reason = "the fit was stopped before the polish ended: no standard errors"
+            covariance = None
+        elif covariance is None:
+            reason = f"the Jacobian has no usable rank (parameters {', '.join(null) or 'all'}): no standard errors"
+        else:
+            standard_errors = {
+                k: float(math.sqrt(max(covariance[j, j], 0.0))) for j, k in enumerate(free) if k not in null
+            }
+            if null:
+                zero = [free[i] for i in polished["zero"]]
+                why = f" ({', '.join(zero)} change no residual at all)" if zero else ""
+                reason = (
+                    f"rank-deficient Jacobian: {', '.join(null)} cannot be determined from these points{why}; "
+                    "a combination of them leaves every residual unchanged, so they have no standard error"
+                )
+        if null and not stopped:
+            warnings.warn(f"fit: {model.__name__}: {reason}", IdentifiabilityWarning, stacklevel=4)
+    elif not reason:
+        reason = "standard errors come from the least-squares polish, which did not run"
     return FitResult(
         params=params,
-        loss=float(np.mean(residuals**2)),
+        loss=loss,
         residuals=residuals,
-        history=history,
-        timings=timings,
-        stages=tuple(s for s in stages if s in timings),
         stopped=stopped,
         standard_errors=standard_errors,
         covariance=covariance,
-        free=tuple(prob.free),
+        free=free,
+        residual=prob.residual,
+        loss_function=prob.loss,
+        loss_scale=scale,
+        rms=float(np.sqrt(np.mean(kept**2))) if kept.size else math.nan,
+        max_distance=float(kept.max()) if kept.size else math.nan,
+        inliers=mask,
+        outlier_fraction=float(1.0 - mask.mean()),
+        termination=termination,
+        std_error_reason=reason,
+        unidentifiable=null,
+        model=model,
+        points=x.detach().cpu().to(torch.float64).numpy(),
     )
 
 

@@ -56,11 +56,13 @@ class Progress:
         every: int = 10,
         stop: StopFlag | None = None,
         progress: bool = True,
+        delay: float = 0.0,
     ):
         if every < 1:
             raise ValueError(f"every must be >= 1, got {every}")
         self.total, self.stage, self.callback, self.every, self.stop = total, stage, callback, every, stop
-        self.bar = tqdm(total=total, desc=stage, disable=not progress, leave=False)
+        # delay: the bar appears only once the stage has run that many seconds (tqdm's delay)
+        self.bar = tqdm(total=total, desc=stage, disable=not progress, leave=False, delay=delay)
         self.start = time.perf_counter()
         self.stopped = False
 

@@ -1,4 +1,5 @@
-"""Meshing f = 0: the Mesh type, grids, root finding onto f = 0, marching cubes (one module per idea).
+"""Meshing f = 0 (one module per idea): the Mesh type, grids, root finding onto f = 0, marching cubes,
+the certified octree, dual contouring; ``polygonize`` picks the method.
 
 >>> from pyfrep_core import sphere
 >>> m = polygonize(lambda x: sphere(x, r=1.0), ((-1.2,) * 3, (1.2,) * 3), 32)
@@ -7,8 +8,8 @@
 """
 
 from .grid import GridTooLargeError, available_memory, evaluate_grid, grid_axes, grid_memory
-from .marching_cubes import polygonize
 from .mesh_type import Mesh
+from .polygonize import polygonize
 
 __all__ = [
     "Mesh",

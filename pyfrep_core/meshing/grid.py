@@ -193,10 +193,23 @@ def _check_grid_options(fn: str, f: Any, dtype: Any) -> torch.dtype:
     return check_option(dtype, "dtype", fn, "choice", choices=GRID_DTYPES)
 
 
+class Stopped(Exception):  # noqa: N818  (not an error: the caller asked to stop)
+    """Raised out of a chunk loop when its progress reports a stop request (callback or stop flag)."""
+
+
 def _evaluate_grid(
-    f: Callable, axes: list[np.ndarray], dtype: torch.dtype, device: Any, max_points: int | None
+    f: Callable,
+    axes: list[np.ndarray],
+    dtype: torch.dtype,
+    device: Any,
+    max_points: int | None,
+    progress: Callable[[int], Any] | None = None,
 ) -> tuple[np.ndarray, float, float]:
-    """f on the grid of ``axes`` plus its min and max; raises on a non-finite value."""
+    """f on the grid of ``axes`` plus its min and max; raises on a non-finite value.
+
+    ``progress(n_chunks)``, when given, returns a :class:`pyfrep_core.progress.Progress` advanced
+    once per chunk; :class:`Stopped` is raised when it asks to stop.
+    """
     device = torch.device(device)
     if max_points is None:  # cache-sized on the CPU, and never above the memory budget of one call
         default = _chunk_points(f, CHUNK_POINTS if device.type == "cpu" else CHUNK_POINTS_GPU)
@@ -215,7 +228,16 @@ def _evaluate_grid(
         out[i : i + kx, j : j + ky] = vals.cpu().numpy()
         return lo, hi
 
-    ranges = _map(chunk, list(_grid_chunks(shape, max_points)), device)
+    blocks = list(_grid_chunks(shape, max_points))
+    if progress is None:
+        ranges = _map(chunk, blocks, device)
+    else:
+        ranges = []
+        with progress(len(blocks)) as bar:
+            for step, block in enumerate(blocks):
+                ranges.append(chunk(block))
+                if bar.update(step):
+                    raise Stopped
     return out, min(r[0] for r in ranges), max(r[1] for r in ranges)
 
 

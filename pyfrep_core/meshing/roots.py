@@ -206,12 +206,47 @@ def _roots_on_edges(
     # where f is smooth, against O(h^2) for marching cubes' linear interpolation)
     size = np.asarray(values.shape)[axis]
     c, slope = _cubic_root(flat, lin, step, i0.reshape(-1)[along], size, f0, f1, t)
-    root = np.full(len(sel), np.nan)
+    root, rows, c = _bracketed_roots(f, start, start_axis, h, axis, c, slope, f0, f1, step_tol, device, max_iter)
+    found = np.flatnonzero(np.isfinite(root))
+    # start + t * edge: across the edge the grid node's coordinates, which marching cubes' vertex has
+    moving = sel * 3 + axis  # the coordinate along the edge in verts.reshape(-1)
+    verts.reshape(-1)[moving[found]] = start_axis[found] + root[found] * h[found]
+    verts.reshape(-1)[moving[rows]] = start_axis[rows] + c * h[rows]  # not done yet: the best estimate
+    done[sel[found]] = True
+    return verts, done
+
+
+def _bracketed_roots(
+    f: Callable,
+    start: np.ndarray,
+    start_axis: np.ndarray,
+    h: np.ndarray,
+    axis: np.ndarray,
+    c: np.ndarray,
+    slope: np.ndarray,
+    f0: np.ndarray,
+    f1: np.ndarray,
+    step_tol: float,
+    device: Any,
+    max_iter: int = 12,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Roots of f on K axis-aligned edges that bracket one (float64; Dekker's safeguarded secant).
+
+    Edge k runs from ``start[k]`` (K, 3) along axis ``axis[k]`` over length ``h[k]``; its end
+    values ``f0[k]``, ``f1[k]`` have opposite signs; ``start_axis[k]`` is ``start[k, axis[k]]``.
+    ``c`` is the first guess in (0, 1) and ``slope`` df/dt there (Newton's first step).  Secant
+    steps are taken while they stay inside the bracket, regula falsi's otherwise; an edge is
+    done when the next step is below ``step_tol`` (length units) or f is exactly 0.
+
+    Returns ``root`` (K,) in edge units (NaN where not done), and the rows not done after
+    ``max_iter`` steps with their last estimates ``c``.
+    """
+    root = np.full(len(c), np.nan)
     # the rows still moving: their points, where their coordinate along the edge starts, edge
     # lengths and axes.  A point start + c * edge differs from start only along the edge, as c
     # stays finite (in [0, 1]: a step that leaves the bracket is replaced by regula falsi's,
     # c - fc (c - a) / (fc - fa) with fc, fa of opposite signs, which lies between c and a)
-    rows, x, xa, hs, ax = np.arange(len(sel)), start.copy(), start_axis, h, axis
+    rows, x, xa, hs, ax = np.arange(len(c)), start.copy(), start_axis, h, axis
     a = fa = p = fp = None  # bracket end opposite to c, and the previous iterate
     for _ in range(max_iter):
         x.reshape(-1)[np.arange(len(rows)) * 3 + ax] = xa + c * hs
@@ -251,13 +286,7 @@ def _roots_on_edges(
         if len(rows) == 0:
             break
         x, xa, hs, ax = np.take(x, go, axis=0), xa[go], hs[go], ax[go]
-    found = np.flatnonzero(np.isfinite(root))
-    # start + t * edge: across the edge the grid node's coordinates, which marching cubes' vertex has
-    moving = sel * 3 + axis  # the coordinate along the edge in verts.reshape(-1)
-    verts.reshape(-1)[moving[found]] = start_axis[found] + root[found] * h[found]
-    verts.reshape(-1)[moving[rows]] = start_axis[rows] + c * h[rows]  # not done yet: the best estimate
-    done[sel[found]] = True
-    return verts, done
+    return root, rows, c
 
 
 def _cubic_root(

@@ -15,6 +15,7 @@ from typing import Any
 
 import ipywidgets as widgets
 
+from .help import help_box
 from .user_models import offer, register
 
 __all__ = ["App", "app", "paper_models"]
@@ -96,7 +97,7 @@ class App(widgets.Tab):
         except Exception as err:  # the other tabs keep working
             panel = unavailable(title, err)
         self.panels[title] = panel
-        self.children[index].children = (panel,)
+        self.children[index].children = (help_box(title), panel)  # what the tab shows, with the paper's eq./Fig.
         self._link()
         if hasattr(panel, "on_run"):  # the Model tab: a model run there opens in every panel
             panel.on_run.append(self.open_model)

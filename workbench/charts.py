@@ -72,6 +72,7 @@ class LineChart:
         self.references: dict[str, float] = {}
         self._lock = threading.Lock()
         self._last_draw = 0.0
+        self._queued = False
         self.draws = 0
         self.widget = widgets.Image(format="png", layout=widgets.Layout(width=f"{int(size[0] * 90)}px"))
         self.draw()
@@ -105,11 +106,17 @@ class LineChart:
         self.refresh(force=True)
 
     def refresh(self, force: bool = False) -> None:
-        """Redraw if ``min_interval`` has passed since the last draw (always when forced)."""
+        """Redraw if ``min_interval`` has passed since the last draw and no redraw waits to run
+        (always when forced): a busy main thread never has a queue of charts to draw."""
         now = time.monotonic()
-        if force or now - self._last_draw >= self.min_interval:
+        if force or (not self._queued and now - self._last_draw >= self.min_interval):
             self._last_draw = now
-            self.schedule(self.draw)
+            self._queued = True
+            self.schedule(self._queued_draw)
+
+    def _queued_draw(self) -> None:
+        self._queued = False
+        self.draw()
 
     def draw(self) -> None:
         fig = new_figure(*self.size)

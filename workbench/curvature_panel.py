@@ -2,8 +2,11 @@
 
 The paper's Fig. 3 (Schwarz D).  Curvatures come from ``pyfrep_core.curvature.curvatures``
 (autograd Hessians of f at the mesh vertices, after they are projected onto f = 0); the panel
-only meshes, asks for them and draws.  The colour range is clipped at chosen percentiles so a
-few extreme values (near sharp edges) do not wash out the map.
+only meshes, asks for them and draws.  Where a curvature is undefined (grad f = 0, creases:
+``Curvatures.defined``) the surface is grey and the status counts the vertices; the colour range
+is chosen percentiles of the other values (a few huge values next to sharp edges do not wash out
+the map), on a diverging map centred on 0 for a quantity of both signs and a one-sided map for a
+one-signed one (the Gaussian curvature of Schwarz D is <= 0 everywhere).
 """
 
 from __future__ import annotations
@@ -19,52 +22,38 @@ from pyfrep_core import Model, polygonize
 
 from ._threads import LatestWorker, MainThread
 from .charts import figure_png, new_figure
-from .view import MeshView
+from .colours import ColourRange, colour_range
+from .view import MeshView, shows_inside
 
 __all__ = ["CurvaturePanel", "curvature_panel", "QUANTITIES"]
 
-# label -> key in the curvature table
+# label -> field of pyfrep_core.curvature.Curvatures
 QUANTITIES = {"mean H": "H", "Gaussian K": "K", "kmin": "kmin", "kmax": "kmax"}
+UNITS = {"H": "1/length", "K": "1/length^2", "kmin": "1/length", "kmax": "1/length"}
+EQUATIONS = {
+    "H": "H = -div(n)/2, n = grad f/|grad f| (paper eq. mean_curv)",
+    "K": "K = grad f . Hessian*(f) . grad f^T / |grad f|^4 (paper eq. gauss_curv)",
+    "kmin": "kmin = H - sqrt(H^2 - K)",
+    "kmax": "kmax = H + sqrt(H^2 - K)",
+}
 
 
 def curvature_table(f: Any, x: np.ndarray) -> dict[str, np.ndarray]:
-    """H, K, kmin, kmax at points ``x`` (N, 3), from ``pyfrep_core.curvature``.
+    """H, K, kmin, kmax (NaN where undefined) and the ``defined`` mask at points ``x`` (N, 3).
 
     Examples
     --------
     >>> from pyfrep_core import sphere
-    >>> t = curvature_table(lambda x: sphere(x, r=2.0), np.array([[0.0, 0.0, 2.0]]))
-    >>> float(t["H"][0]), float(t["K"][0])
-    (0.5, 0.25)
+    >>> t = curvature_table(lambda x: sphere(x, r=2.0), np.array([[0.0, 0.0, 2.0], [0.0, 0.0, 0.0]]))
+    >>> float(t["H"][0]), float(t["K"][0]), t["defined"].tolist()  # the centre: grad f = 0
+    (0.5, 0.25, [True, False])
     """
-    from pyfrep_core import curvature
+    from pyfrep_core.curvature import curvatures
 
-    out = curvature.curvatures(f, x)
-    if hasattr(out, "_asdict"):
-        out = out._asdict()
-    elif not isinstance(out, dict):
-        out = {k: getattr(out, k) for k in ("H", "K", "kmin", "kmax") if hasattr(out, k)}
-    aliases = {"mean": "H", "gaussian": "K", "k_min": "kmin", "k_max": "kmax", "k1": "kmin", "k2": "kmax"}
-    table = {aliases.get(k, k): np.asarray(v, dtype=np.float64) for k, v in out.items()}
-    missing = [k for k in QUANTITIES.values() if k not in table]
-    if missing:
-        raise KeyError(f"pyfrep_core.curvature.curvatures gave no {missing}; got {sorted(table)}")
+    c = curvatures(f, np.asarray(x, dtype=np.float64))
+    table = {key: np.asarray(getattr(c, key), dtype=np.float64) for key in QUANTITIES.values()}
+    table["defined"] = np.asarray(c.defined, dtype=bool)
     return table
-
-
-def clip_range(values: np.ndarray, percentiles: tuple[float, float]) -> tuple[float, float]:
-    """The colour range: the given percentiles of the finite values.
-
-    Examples
-    --------
-    >>> clip_range(np.array([0.0, 1.0, 2.0, 3.0, 4.0, np.nan]), (25, 75))
-    (1.0, 3.0)
-    """
-    finite = values[np.isfinite(values)]
-    if finite.size == 0:
-        return (-1.0, 1.0)
-    lo, hi = np.percentile(finite, percentiles)
-    return (float(lo), float(hi)) if hi > lo else (float(lo) - 1e-12, float(hi) + 1e-12)
 
 
 class CurvaturePanel(widgets.VBox):
@@ -98,28 +87,45 @@ class CurvaturePanel(widgets.VBox):
         self.resolution = widgets.Dropdown(
             options=sorted({32, 48, 64, 96, 128, int(resolution)}), value=int(resolution), description="resolution"
         )
-        self.quantity = widgets.ToggleButtons(options=list(QUANTITIES), value="mean H", description="colour")
-        self.quantity.style.button_width = "96px"
-        self.clip = widgets.FloatRangeSlider(
-            value=(2.0, 98.0), min=0.0, max=100.0, step=0.5, description="percentiles", continuous_update=False
+        self.quantity = widgets.ToggleButtons(
+            options=list(QUANTITIES),
+            value="mean H",
+            description="colour",
+            tooltips=[EQUATIONS[k] for k in QUANTITIES.values()],
         )
-        self.histogram = widgets.Image(format="png", layout=widgets.Layout(width="420px"))
+        self.quantity.style.button_width = "80px"
+        self.clip = widgets.FloatRangeSlider(
+            value=(2.0, 98.0),
+            min=0.0,
+            max=100.0,
+            step=0.5,
+            description="range (pct)",
+            tooltip="the colour range: these percentiles of the defined values; the rest is clipped (end colours)",
+            continuous_update=False,
+            layout=widgets.Layout(width="380px"),
+        )
+        self.histogram = widgets.Image(format="png", layout=widgets.Layout(width="420px", display="none"))
         self.status = widgets.HTML("computing curvatures...")
-        self.view = MeshView(backend=backend, size=size)
+        self.colours: ColourRange | None = None
+        self.view = MeshView(backend=backend, size=size, section=shows_inside(self.models[next(iter(self.models))]))
         self.worker = LatestWorker(self._compute, self._computed, self.main, settle=0.0)
 
-        self.model_choice.observe(lambda _: self.request(), names="value")
+        self.model_choice.observe(lambda _: self._model_changed(), names="value")
         self.resolution.observe(lambda _: self.request(), names="value")
         # renders belong on the main thread (JupyterLab may call back on a subshell thread)
         self.quantity.observe(lambda _: self.main.call(self.draw), names="value")
         self.clip.observe(lambda _: self.main.call(self.draw), names="value")
         controls = widgets.VBox([self.model_choice, self.resolution, self.quantity, self.clip, self.histogram])
-        super().__init__([widgets.HBox([controls, self.view.widget]), self.status])
+        super().__init__([widgets.HBox([controls, self.view.box]), self.status])
         self.request()
 
     @property
     def model(self) -> Model:
         return self.models[self.model_choice.value]
+
+    def _model_changed(self) -> None:
+        self.view.set_section(on=shows_inside(self.model))  # a lattice opens, a solid closes
+        self.request()
 
     def request(self) -> None:
         job = {"model": self.model, "resolution": int(self.resolution.value)}
@@ -147,44 +153,76 @@ class CurvaturePanel(widgets.VBox):
             return
         first = self.mesh is None
         self.mesh, self.table = result["mesh"], result["table"]
+        lo, hi = np.asarray(job["model"].bounds[0]), np.asarray(job["model"].bounds[1])
+        self.spacing = float(np.max(hi - lo)) / (job["resolution"] - 1)  # the grid's step: what the mesh resolves
         self.model_name = job["model"].__name__
         self.seconds = result["seconds"]
         self.draw(reset_camera=True if first else job["model"] is not getattr(self, "_shown_model", None))
         self._shown_model = job["model"]
 
     def draw(self, reset_camera: bool = False) -> None:
-        """Colour the mesh by the chosen quantity and redraw the histogram (no recomputation)."""
+        """Colour the mesh by the chosen quantity and redraw the histogram (no recomputation).
+
+        Undefined vertices (grad f = 0, creases: ``Curvatures.defined`` False) are grey and
+        counted; the range is the chosen percentiles of the others (:func:`workbench.colours.colour_range`):
+        a diverging map centred on 0 for a quantity of both signs, a one-sided one otherwise.
+        """
         if self.table is None:
             return
         key = QUANTITIES[self.quantity.value]
-        values = self.table[key]
-        clim = clip_range(values, self.clip.value)
-        if key in ("H", "K") and clim[0] < 0 < clim[1]:
-            top = max(-clim[0], clim[1])
-            clim = (-top, top)  # signed quantities: diverging map centred on 0
+        values, defined = self.table[key], self.table["defined"]
+        # a radius of curvature under half the grid spacing is finer than this mesh shows: a crease
+        # (near one, f's level sets bend on the scale of the distance to it) or a strut thinner than
+        # the grid; such values (1e16 at a crease) say nothing about the surface drawn
+        bend = np.fmax(np.abs(self.table["kmin"]), np.abs(self.table["kmax"]))
+        resolved = defined & (bend * self.spacing <= 2.0)
+        self.resolved = resolved
+        span = colour_range(values, resolved, percentiles=self.clip.value)
+        self.colours = span
+        shown = np.where(resolved, values, np.nan)
+        unit = UNITS[key]
         self.view.update(
-            self.mesh, scalars=np.clip(values, *clim), title=key, cmap="coolwarm", clim=clim, reset_camera=reset_camera
+            self.mesh, scalars=shown, title=f"{key} ({unit})", cmap=span.cmap, clim=span.clim, reset_camera=reset_camera
         )
-        self.histogram.value = self._histogram(values, clim, key)
-        finite = values[np.isfinite(values)]
+        self.histogram.value = self._histogram(values[resolved], span, key, unit)
+        self.histogram.layout.display = ""
+        median = float(np.median(values[resolved])) if resolved.any() else float("nan")
+        n_undefined, n_fine = int((~defined).sum()), int((defined & ~resolved).sum())
+        why = []
+        if n_undefined:
+            why.append(f"{n_undefined} with no curvature (grad f = 0 or on a crease)")
+        if n_fine:
+            why.append(
+                f"{n_fine} with a radius of curvature under half the grid spacing {self.spacing:.3g} "
+                "(creases, or features finer than the mesh: raise the resolution)"
+            )
         self.status.value = (
             f"{html.escape(self.model_name)}: {self.mesh.n_vertices} vertices, curvatures in "
-            f"{1000 * self.seconds:.0f} ms; {key}: median {np.median(finite):.4g}, "
-            f"range [{finite.min():.4g}, {finite.max():.4g}], colour clipped to [{clim[0]:.4g}, {clim[1]:.4g}]"
+            f"{1000 * self.seconds:.0f} ms; {html.escape(EQUATIONS[key])}; median {median:.4g} {unit}; colour "
+            f"{html.escape(span.describe(key, unit))}" + (f": {'; '.join(why)}" if why else "")
         )
 
     @staticmethod
-    def _histogram(values: np.ndarray, clim: tuple[float, float], key: str) -> bytes:
-        fig = new_figure(4.6, 2.8)
+    def _histogram(values: np.ndarray, span: ColourRange, key: str, unit: str) -> bytes:
+        """Histogram of the defined values over the colour range, bars in the map's colours."""
+        from matplotlib import colormaps
+
+        fig = new_figure(4.6, 3.0)
         ax = fig.add_subplot()
-        finite = values[np.isfinite(values)]
-        ax.hist(finite, bins=60, range=clim, color="#4c72b0")
-        ax.axvline(0.0, color="k", lw=0.8)
-        outside = int(np.sum((finite < clim[0]) | (finite > clim[1])))
-        ax.set_title(f"{key} at the {finite.size} mesh vertices ({outside} outside the range)", fontsize=9)
-        ax.set_xlabel(key, fontsize=8)
-        ax.set_ylabel("vertices", fontsize=8)
-        ax.tick_params(labelsize=7)
+        counts, edges = np.histogram(np.clip(values, span.lo, span.hi), bins=60, range=span.clim)
+        centres = 0.5 * (edges[1:] + edges[:-1])
+        cmap = colormaps[span.cmap]
+        colours = cmap((centres - span.lo) / (span.hi - span.lo))
+        ax.bar(centres, counts, width=np.diff(edges), color=colours, edgecolor="none")
+        if span.lo < 0.0 < span.hi:
+            ax.axvline(0.0, color="k", lw=0.8)
+        ax.set_title(
+            f"{key} at {values.size} vertices\n{100 * span.clipped:.2g}% clipped into the end bars",
+            fontsize=10,
+        )
+        ax.set_xlabel(f"{key} ({unit})", fontsize=10)
+        ax.set_ylabel("vertices", fontsize=10)
+        ax.tick_params(labelsize=10)
         return figure_png(fig)
 
 

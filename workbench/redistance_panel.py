@@ -80,10 +80,21 @@ class RedistancePanel(widgets.VBox):
         self.bar = widgets.IntProgress(value=0, min=0, max=1, layout=widgets.Layout(width="300px"))
         self.progress_text = widgets.HTML("")
         self.status = widgets.HTML("")
+        # redrawn at most once a second, never queued twice: a kernel busy drawing charts answers
+        # neither the Stop button nor the 3-D views' connections
         self.loss_chart = LineChart(
-            "training loss", "step", "loss", logy=True, schedule=lambda fn: self.main.call(fn, vtk=False)
+            "training loss",
+            "step",
+            "loss",
+            logy=True,
+            min_interval=1.0,
+            schedule=lambda fn: self.main.call(fn, vtk=False),
         )
-        self.slices = widgets.Image(format="png", layout=widgets.Layout(align_self="flex-start"))  # natural size
+        self._shown_event: Any = None  # the progress line's newest event, shown by the one queued call
+        self._progress_queued = False
+        self._progress_at = 0.0
+        # hidden until the first slices (an empty Image shows a broken-image icon)
+        self.slices = widgets.Image(format="png", layout=widgets.Layout(align_self="flex-start", display="none"))
         self.model_choice.observe(lambda _: self._show_bounds(), names="value")
         self.train_button.on_click(lambda _: self.start())
         self.stop_button.on_click(lambda _: self.stop())
@@ -139,9 +150,10 @@ class RedistancePanel(widgets.VBox):
         return self.run
 
     def stop(self) -> None:
-        if self.run is not None:
+        """Ask the training to stop (nothing when none runs: a late click changes nothing)."""
+        if self.run is not None and self.run.running:
             self.run.stop.set()
-            self.status.value = "stopping..."
+            self.status.value = "stopping..."  # until _finished says where it stopped
 
     def wait(self, timeout: float = 600.0) -> Any:
         if self.run is not None:
@@ -159,7 +171,17 @@ class RedistancePanel(widgets.VBox):
             if self._first_loss is None:
                 self._first_loss = event.loss
         self.loss_chart.refresh()
-        self.main.call(self._progress_text, event, vtk=False)
+        # the progress line: the newest event, at most 5 times a second, one call queued at a time
+        self._shown_event = event
+        now = time.monotonic()
+        if not self._progress_queued and now - self._progress_at >= 0.2:
+            self._progress_queued, self._progress_at = True, now
+            self.main.call(self._flush_progress, vtk=False)
+
+    def _flush_progress(self) -> None:
+        self._progress_queued = False
+        if self._shown_event is not None:
+            self._progress_text(self._shown_event)
 
     def _progress_text(self, event: Any) -> None:
         self.bar.max = max(1, event.total)
@@ -202,11 +224,18 @@ class RedistancePanel(widgets.VBox):
         _, network, (png, errors) = output
         self.network = network
         self.slices.value = png
+        self.slices.layout.display = ""
+        if self.events:
+            self._progress_text(self.events[-1])  # the bar ends where training ended
         name = self.model_choice.value
         self.trained[name] = network
         for callback in self.on_trained:
             callback(name, network)
-        stopped = " (stopped early)" if self.run is not None and self.run.stop.is_set() else ""
+        # where training ended, not whether Stop was pressed: a click that arrives after the last
+        # step (the kernel was busy) stopped nothing
+        last = self.events[-1] if self.events else None
+        early = last is None or last.step + 1 < last.total
+        stopped = f" (stopped early at step {last.step + 1 if last else 0})" if early else ""
         err = "".join(f"; |{k} - d| mean {m:.3g}, max {x:.3g}" for k, (m, x) in errors.items())
         self.status.value = (
             f"<span class='train-done'>trained in {time.perf_counter() - self._t0:.1f} s{stopped}{err} "

@@ -14,7 +14,6 @@ The surface is coloured by the normal velocity of the parameter last moved
 from __future__ import annotations
 
 import ast
-import base64
 import functools
 import html
 import os
@@ -34,24 +33,27 @@ from pyfrep_core.model import check_bounds
 from pyfrep_core.sensitivity import normal_velocity, param_derivative, velocity
 
 from ._threads import LatestWorker, MainThread
+from .colours import colour_range
 from .push_pull import PushPullControls
-from .view import MeshView
+from .view import MeshView, shows_inside
 
 __all__ = ["ShapePanel", "paper_shape_panel", "param_slider", "shape_panel", "surface_velocity", "symmetric_range"]
 
 RESOLUTIONS = (32, 48, 64, 96, 128, 160, 192, 256)
+LABEL_PX = 210  # a slider's label column: "slab threshold near the shell" whole at 13 px
 COLOURINGS = ("sensitivity", "plain")
 
 
 def param_slider(name: str, param: Any, value: float | None = None) -> widgets.FloatSlider:
-    """A slider for one declared ``Param``: its range, a step of range/200, its label.
+    """A slider for one declared ``Param``: its range, a step of range/200, its label in full
+    (a label column wide enough for the paper's longest, and the label, name and range as tooltip).
 
     Examples
     --------
     >>> from pyfrep_core import Param
     >>> s = param_slider("r", Param(0.5, 0.2, 0.8, label="cylinder radius"))
-    >>> s.description, s.min, s.max, round(s.step, 6)
-    ('cylinder radius', 0.2, 0.8, 0.003)
+    >>> s.description, s.min, s.max, round(s.step, 6), s.tooltip
+    ('cylinder radius', 0.2, 0.8, 0.003, 'cylinder radius (r), from 0.2 to 0.8')
     """
     span = param.upper - param.lower
     step = span / 200.0
@@ -62,30 +64,27 @@ def param_slider(name: str, param: Any, value: float | None = None) -> widgets.F
         max=param.upper,
         step=step,
         description=param.label or name,
+        tooltip=f"{param.label or name} ({name}), from {param.lower:g} to {param.upper:g}",
         readout_format=f".{decimals}f",
         continuous_update=True,
-        style={"description_width": "110px"},
-        layout=widgets.Layout(width="340px"),
+        style={"description_width": f"{LABEL_PX}px"},
+        layout=widgets.Layout(width=f"{LABEL_PX + 220}px"),
     )
 
 
 def symmetric_range(values: np.ndarray, percentile: float = 99.0) -> tuple[float, float]:
-    """(-top, top) with top the ``percentile`` of |values| (vertices on creases, where the
-    sensitivity is a sub-gradient, do not set the scale), the maximum when that is 0; (-1, 1) if all are 0.
+    """(-top, top): the diverging range of :func:`workbench.colours.colour_range` between the
+    ``100 - percentile`` and ``percentile`` percentiles (vertices on creases, where the sensitivity
+    is a sub-gradient, do not set the scale); all values when those are equal; about 0 if all are 0.
 
     Examples
     --------
-    >>> symmetric_range(np.array([0.0] * 98 + [1.0, -3.0]), percentile=99.0)[1] > 0
+    >>> symmetric_range(np.array([0.0] * 98 + [1.0, -3.0]), percentile=99.0)
+    (-3.0, 3.0)
+    >>> symmetric_range(np.zeros(5))[1] < 1e-6
     True
-    >>> symmetric_range(np.zeros(5))
-    (-1.0, 1.0)
     """
-    size = np.abs(values[np.isfinite(values)])
-    top = float(np.percentile(size, percentile)) if size.size else 0.0
-    if top <= 0 and size.size:
-        top = float(size.max())
-    top = top if top > 0 else 1.0
-    return (-top, top)
+    return colour_range(values, percentiles=(100.0 - percentile, percentile), diverging=True).clim
 
 
 def surface_velocity(model: Model, mesh: Mesh, name: str, params: dict[str, float]) -> np.ndarray:
@@ -149,7 +148,7 @@ class ShapePanel(widgets.VBox):
         settle: float = 0.35,
         colouring: str = "sensitivity",
         size: tuple[int, int] = (640, 480),
-        export_dir: str = ".",
+        export_dir: str | None = None,
         choices: dict[str, Model] | None = None,
         sparse: bool | None = None,
         compiled: bool = True,
@@ -212,7 +211,7 @@ class ShapePanel(widgets.VBox):
         self.reset_button = widgets.Button(description="Reset", layout=widgets.Layout(width="100px"))
         self.status = widgets.HTML(value="meshing...")
         self.download = widgets.HTML(value="")
-        self.view = MeshView(backend=backend, size=size)
+        self.view = MeshView(backend=backend, size=size, section=shows_inside(model))
         self._bounds_value = bounds
         self.worker = LatestWorker(self._build, self._show, self.main, settle=settle)
         self._warm_thread: threading.Thread | None = None
@@ -226,10 +225,10 @@ class ShapePanel(widgets.VBox):
         self.colouring.observe(lambda _: self.request(), names="value")
         self.reset_button.on_click(lambda _: self.reset())
 
-        legend = widgets.HTML(
+        self.legend = widgets.HTML(
             "<small>colour = normal velocity v = -(&part;f/&part;p)/|&nabla;f| of the last parameter moved: "
             "red moves into the solid, blue outward (units per unit of p)</small>",
-            layout=widgets.Layout(width="340px"),
+            layout=widgets.Layout(width="420px", display="" if colouring == "sensitivity" else "none"),
         )
         controls = widgets.VBox(
             [
@@ -240,13 +239,13 @@ class ShapePanel(widgets.VBox):
                 self.resolution,
                 self.bounds,
                 self.colouring,
-                legend,
+                self.legend,
                 widgets.HBox([self.export_format, self.export_button, self.reset_button]),
                 self.download,
             ],
-            layout=widgets.Layout(width="360px"),
+            layout=widgets.Layout(width="440px"),
         )
-        super().__init__([widgets.HBox([controls, self.view.widget]), self.status])
+        super().__init__([widgets.HBox([controls, self.view.box]), self.status])
         self.request()
 
     def _make_sliders(self, model: Model) -> None:
@@ -265,6 +264,7 @@ class ShapePanel(widgets.VBox):
         self.last_moved = model.names[0] if model.names else None
         self._make_sliders(model)
         self._bounds_value = check_bounds(bounds if bounds is not None else model.bounds, 3)
+        self.view.set_section(on=shows_inside(model))  # a lattice opens, a solid closes
         self._quiet = True
         try:
             self.bounds.value = _format_bounds(self._bounds_value)
@@ -409,6 +409,7 @@ class ShapePanel(widgets.VBox):
         self.view.update(
             mesh, scalars=scalars, title=title, cmap="coolwarm", clim=clim, reset_camera=job["reset_camera"]
         )
+        self.legend.layout.display = "" if scalars is not None else "none"  # says what the colours mean
         self.remesh_count += 1
         self.last_remesh_s = result["seconds"]
         values = ", ".join(f"{k} = {v:.4g}" for k, v in job["params"].items())
@@ -438,25 +439,26 @@ class ShapePanel(widgets.VBox):
         self.request()
 
     def export(self, path: str | None = None) -> str:
-        """Write the shown mesh as STL/OBJ/PLY; returns the path and offers a download link."""
+        """Write the shown mesh as STL/OBJ/PLY and offer it as a browser download; returns the path.
+
+        With no ``path`` (and no ``export_dir``) the file goes to the kernel's temporary export
+        directory, never the working tree, and the link streams it (:mod:`workbench.downloads`).
+        """
         if self.mesh is None or self.mesh.is_empty():
             self.status.value = "<span style='color:#b00'>nothing to export yet</span>"
             return ""
+        from .downloads import downloads
+
         fmt = self.export_format.value
+        name = f"{self.model.__name__}.{fmt}"
+        served = path is None and self.export_dir is None
         if path is None:
-            path = os.path.join(self.export_dir, f"{self.model.__name__}.{fmt}")
-        save = getattr(self.mesh, "save", None)
-        if callable(save):
-            save(path)
+            path = downloads().new_path(name) if served else os.path.join(self.export_dir, name)
+        self.mesh.save(path)
+        if served:
+            self.download.value = downloads().link(path)
         else:
-            self.mesh.to_pyvista().save(path)
-        with open(path, "rb") as fh:
-            data = base64.b64encode(fh.read()).decode("ascii")
-        name = os.path.basename(path)
-        self.download.value = (
-            f"<a download='{html.escape(name)}' href='data:application/octet-stream;base64,{data}'>"
-            f"download {html.escape(name)}</a> (saved to {html.escape(path)})"
-        )
+            self.download.value = f"saved to {html.escape(path)}"
         return path
 
 

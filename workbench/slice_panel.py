@@ -19,14 +19,14 @@ from typing import Any
 import ipywidgets as widgets
 import numpy as np
 import torch
-from matplotlib.colors import TwoSlopeNorm
 
 from pyfrep_core import Model
 
 from ._threads import LatestWorker, MainThread
 from .charts import figure_png, new_figure
+from .colours import UNDEFINED_COLOUR, colour_range
 
-__all__ = ["SlicePanel", "slice_panel", "FIELDS", "plane_points", "draw_slices"]
+__all__ = ["SlicePanel", "slice_panel", "FIELDS", "plane_points", "draw_slices", "slice_figure"]
 
 FIELDS = ("f", "omega_1", "omega_2", "delta_1", "redistanced", "true distance")
 AXES = ("x", "y", "z")
@@ -91,39 +91,98 @@ def _numpy(v: Any) -> np.ndarray:
     return np.asarray(v, dtype=np.float64)
 
 
+FONT = 10  # points: readable on a projector (matplotlib's 6-7 pt ticks are not)
+UNITS = {"f": "units of f", "redistanced": "length", "true distance": "length"}  # else length (distance estimates)
+
+
 def draw_slices(
-    axes_uv: list[np.ndarray], fields: dict[str, np.ndarray], truth: np.ndarray | None, labels: tuple[str, str]
+    axes_uv: list[np.ndarray],
+    fields: dict[str, np.ndarray],
+    truth: np.ndarray | None,
+    labels: tuple[str, str],
+    columns: int = 3,
 ) -> bytes:
-    """Filled contours of each field (zero level bold) and, below, |field - truth|; PNG bytes."""
+    """:func:`slice_figure` as PNG bytes.
+
+    Examples
+    --------
+    >>> u = v = np.linspace(-1.0, 1.0, 20)
+    >>> f = 0.5 - np.hypot(*np.meshgrid(u, v))
+    >>> draw_slices([u, v], {"f": f}, None, ("x", "y"))[:4]
+    b'\\x89PNG'
+    """
+    return figure_png(slice_figure(axes_uv, fields, truth, labels, columns))
+
+
+def slice_figure(
+    axes_uv: list[np.ndarray],
+    fields: dict[str, np.ndarray],
+    truth: np.ndarray | None,
+    labels: tuple[str, str],
+    columns: int = 3,
+) -> Any:
+    """Filled contours of each field (zero level bold) and, below each, |field - truth|; a Figure.
+
+    Colour ranges come from :func:`workbench.colours.colour_range` (robust percentiles, a
+    diverging map centred on 0 for signed fields, one-sided for the errors); each title states
+    the fraction of samples its range clips and any undefined (NaN, grey) samples.  Fonts >= 10 pt.
+
+    Examples
+    --------
+    >>> u = v = np.linspace(-1.0, 1.0, 20)
+    >>> f = 0.5 - np.hypot(*np.meshgrid(u, v))
+    >>> fig = slice_figure([u, v], {"f": f}, None, ("x", "y"))
+    >>> fig.axes[0].get_title().splitlines()[0]
+    'f'
+    """
     names = list(fields)
-    rows = 2 if truth is not None else 1
-    fig = new_figure(2.7 * max(1, len(names)), 2.5 * rows + 0.3, dpi=80)
+    cols = max(1, min(columns, len(names)))
+    blocks = -(-len(names) // cols)  # rows of fields; each with a row of errors under it
+    per = 2 if truth is not None else 1
+    fig = new_figure(3.5 * cols, 3.1 * blocks * per + 0.2, dpi=80)
     u, v = axes_uv
-    for j, name in enumerate(names):
-        ax = fig.add_subplot(rows, len(names), j + 1)
-        z = fields[name]
-        finite = z[np.isfinite(z)]
-        lo, hi = (float(finite.min()), float(finite.max())) if finite.size else (-1.0, 1.0)
-        lo, hi = min(lo, -1e-9), max(hi, 1e-9)
-        cs = ax.contourf(u, v, z, levels=21, cmap="RdBu_r", norm=TwoSlopeNorm(0.0, lo, hi))
-        ax.contour(u, v, z, levels=11, colors="k", linewidths=0.3, alpha=0.4)
-        ax.contour(u, v, z, levels=[0.0], colors="k", linewidths=2.2)
-        fig.colorbar(cs, ax=ax, shrink=0.8).ax.tick_params(labelsize=6)
-        ax.set_title(name, fontsize=9)
+
+    def panel(row: int, col: int) -> Any:
+        ax = fig.add_subplot(blocks * per, cols, row * cols + col + 1)
+        ax.set_facecolor(UNDEFINED_COLOUR)  # NaN samples (undefined) show grey, not white
         ax.set_aspect("equal")
-        ax.tick_params(labelsize=6)
-        ax.set_xlabel(labels[0], fontsize=7)
-        ax.set_ylabel(labels[1], fontsize=7)
+        ax.tick_params(labelsize=FONT)
+        return ax
+
+    def contour(ax: Any, z: np.ndarray, span: Any, unit: str) -> None:
+        levels = np.linspace(span.lo, span.hi, 22)
+        cs = ax.contourf(u, v, np.clip(z, span.lo, span.hi), levels=levels, cmap=span.cmap)
+        bar = fig.colorbar(cs, ax=ax, shrink=0.85, ticks=np.linspace(span.lo, span.hi, 5))
+        bar.ax.tick_params(labelsize=FONT)
+        bar.set_label(unit, fontsize=FONT)
+
+    def caption(span: Any) -> str:
+        text = f"{100 * span.clipped:.2g}% clipped"
+        return text + (f", {span.undefined} undefined" if span.undefined else "")
+
+    for j, name in enumerate(names):
+        block, col = divmod(j, cols)
+        z = fields[name]
+        ax = panel(block * per, col)
+        span = colour_range(z, percentiles=(1.0, 99.0), diverging=True)  # signed fields: white is 0
+        contour(ax, z, span, UNITS.get(name, "length"))
+        if np.isfinite(z).any():
+            ax.contour(u, v, z, levels=np.linspace(span.lo, span.hi, 11), colors="k", linewidths=0.3, alpha=0.4)
+            ax.contour(u, v, z, levels=[0.0], colors="k", linewidths=2.2)
+        ax.set_title(f"{name}\n{caption(span)}", fontsize=FONT)
+        ax.set_xlabel(labels[0], fontsize=FONT)
+        ax.set_ylabel(labels[1], fontsize=FONT)
         if truth is not None and name != "true distance":
-            ax = fig.add_subplot(rows, len(names), len(names) + j + 1)
+            ax = panel(block * per + 1, col)
             err = np.abs(z - truth)
-            im = ax.contourf(u, v, err, levels=20, cmap="magma")
-            ax.contour(u, v, truth, levels=[0.0], colors="c", linewidths=1.0)
-            fig.colorbar(im, ax=ax, shrink=0.8).ax.tick_params(labelsize=6)
-            ax.set_title(f"|{name} - d|\nmean {np.nanmean(err):.2g}, max {np.nanmax(err):.2g}", fontsize=8)
-            ax.set_aspect("equal")
-            ax.tick_params(labelsize=6)
-    return figure_png(fig)
+            span = colour_range(err, percentiles=(0.0, 99.0), diverging=False)  # >= 0: one-sided
+            contour(ax, err, span, "length")
+            ax.contour(u, v, truth, levels=[0.0], colors="w", linewidths=1.2)
+            ax.set_title(
+                f"|{name} - d|: mean {np.nanmean(err):.2g}, max {np.nanmax(err):.2g}\n{caption(span)}",
+                fontsize=FONT,
+            )
+    return fig
 
 
 class SlicePanel(widgets.VBox):
@@ -156,18 +215,39 @@ class SlicePanel(widgets.VBox):
         self.values: dict[str, np.ndarray] = {}
         self.truth: np.ndarray | None = None
         self.errors: dict[str, tuple[float, float]] = {}
-        lay = widgets.Layout(width="300px")
-        self.model_choice = widgets.Dropdown(options=list(self.models), description="model", layout=lay)
-        self.axis = widgets.ToggleButtons(options=AXES, value="z", description="normal")
+
+        # one Layout per widget: a shared one is one object, and hiding the offset for a 2-D model
+        # would hide every control sharing it
+        def lay() -> widgets.Layout:
+            return widgets.Layout(width="300px")
+
+        self.model_choice = widgets.Dropdown(options=list(self.models), description="model", layout=lay())
+        self.axis = widgets.ToggleButtons(
+            options=AXES, value="z", description="normal", tooltip="the axis normal to the slice plane"
+        )
         self.axis.style.button_width = "40px"
-        self.offset = widgets.FloatSlider(description="offset", continuous_update=False, layout=lay, step=0.01)
+        self.offset = widgets.FloatSlider(
+            description="offset",
+            tooltip="where the plane cuts its normal axis (model units)",
+            continuous_update=False,
+            layout=lay(),
+            step=0.01,
+        )
         self.resolution = widgets.IntSlider(
-            value=resolution, min=32, max=400, step=8, description="samples", continuous_update=False, layout=lay
+            value=resolution,
+            min=32,
+            max=400,
+            step=8,
+            description="samples",
+            tooltip="samples per side of the plane",
+            continuous_update=False,
+            layout=lay(),
         )
         self.fields = widgets.SelectMultiple(
-            options=FIELDS, value=FIELDS, description="fields", rows=len(FIELDS), layout=lay
+            options=FIELDS, value=FIELDS, description="fields", rows=len(FIELDS), layout=lay()
         )
-        self.image = widgets.Image(format="png", layout=widgets.Layout(align_self="flex-start"))  # natural size
+        # natural size; hidden until the first plot (an empty Image shows a broken-image icon)
+        self.image = widgets.Image(format="png", layout=widgets.Layout(align_self="flex-start", display="none"))
         self.status = widgets.HTML("slicing...")
         self.worker = LatestWorker(self._compute, self._computed, self.main, settle=0.0)
         self._sync_offset()
@@ -282,6 +362,7 @@ class SlicePanel(widgets.VBox):
                     self.errors[k] = (float(np.nanmean(err)), float(np.nanmax(err)))
         if shown:
             self.image.value = draw_slices(result["uv"], shown, self.truth, (others[0], others[1]))
+            self.image.layout.display = ""
         plane = f"{AXES[job['axis']]} = {job['offset']:.3g}" if model.dim == 3 else "its plane"
         table = "".join(f"<tr><td>{k}</td><td>{m:.3g}</td><td>{x:.3g}</td></tr>" for k, (m, x) in self.errors.items())
         missing = "".join(f"<li>{html.escape(m)}: not available yet</li>" for m in result["missing"])

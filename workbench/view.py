@@ -32,10 +32,39 @@ os.makedirs(_NO_WASM, exist_ok=True)
 os.environ.setdefault("VTK_WASM_DIR_OVERRIDE", _NO_WASM)
 
 import pyvista as pv  # noqa: E402
+from vtkmodules.vtkCommonDataModel import vtkPlane  # noqa: E402
 
-__all__ = ["MeshView", "resolve_backend"]
+from .colours import UNDEFINED_COLOUR  # noqa: E402
+from .trame_delivery import prompt_image_delivery  # noqa: E402
+
+__all__ = ["LATTICES", "MeshView", "resolve_backend", "shows_inside"]
+
+LATTICES = ("microstructure",)  # the paper's shapes whose interesting part is inside a skin
+
+
+def shows_inside(model: object) -> bool:
+    """Whether a view of ``model`` opens with its section on: a lattice (one of :data:`LATTICES`,
+    or any model given ``model.lattice = True``), whose struts a closed skin would hide.
+
+    Examples
+    --------
+    >>> from pyfrep_core.models import fig1_part, microstructure
+    >>> shows_inside(microstructure), shows_inside(fig1_part)
+    (True, False)
+    """
+    return bool(getattr(model, "lattice", False)) or getattr(model, "__name__", "") in LATTICES
+
 
 BACKENDS = ("trame", "image", "offscreen")  # offscreen: render only, no picture pushed (benchmarks)
+
+
+def _white_png(size: tuple[int, int]) -> bytes:
+    """A white PNG of ``size`` (width, height): what an image view shows before its first frame."""
+    from PIL import Image
+
+    buf = io.BytesIO()
+    Image.new("RGB", tuple(size), "white").save(buf, format="png")
+    return buf.getvalue()
 
 
 def _in_kernel() -> bool:
@@ -76,11 +105,16 @@ def resolve_backend(backend: str = "auto") -> str:
 class MeshView:
     """A 3-D view of one surface whose geometry and colouring are replaced in place.
 
+    ``box`` is what a panel shows: the view and, under it, its section control (a clip plane:
+    on/off, the axis it cuts, where), which opens a lattice's closed skin to show its struts.
+    The camera re-frames itself when the surface outgrows (or shrinks well inside) what it frames.
+
     Parameters
     ----------
     backend : "auto", "trame" or "image" (see module docstring).
     size : window size in pixels (width, height).
     color : surface colour when no scalars are shown.
+    section : the clip plane on at first (lattices: their inside is what there is to see).
 
     Examples
     --------
@@ -95,7 +129,9 @@ class MeshView:
     >>> view.close()
     """
 
-    def __init__(self, backend: str = "auto", size: tuple[int, int] = (640, 480), color: str = "#c8c8d2"):
+    def __init__(
+        self, backend: str = "auto", size: tuple[int, int] = (640, 480), color: str = "#c8c8d2", section: bool = False
+    ):
         self.backend = resolve_backend(backend)
         self.size = size
         self.color = color
@@ -111,23 +147,119 @@ class MeshView:
         self.bar: Any = None  # the scalar bar actor
         self.renders = 0
         self.last_render_s = 0.0
+        self.framed: tuple[float, ...] | None = None  # the bounds the camera was last fitted to
+        self._quiet = False
+        self.plane = vtkPlane()  # the section's clip plane, shared by the surface and the cloud
         self.widget = self._make_widget()
+        self._make_section(section)
+        self.box = widgets.VBox([self.widget, self.section_controls])
 
     def _make_widget(self) -> widgets.Widget:
         if self.backend == "trame":
             try:
                 import trame_pyvista  # noqa: F401
 
+                prompt_image_delivery()  # frames reach the browser when encoded, not 0.5 s later
+                # a first white frame: the viewer's first image is otherwise whatever the fresh
+                # framebuffer holds (a black and white smear)
+                self.plotter.render_window.Render()
                 with contextlib.redirect_stdout(io.StringIO()):  # trame_vtklocal prints its wasm path
-                    view = self.plotter.show(jupyter_backend="trame", return_viewer=True)
+                    view = self.plotter.show(
+                        jupyter_backend="trame",
+                        return_viewer=True,
+                        # the toolbar folded into one button: unfolded it covers the top of the scene
+                        jupyter_kwargs={"collapse_menu": True},
+                    )
                 if view is None:
                     raise RuntimeError("pyvista returned no trame viewer")
+                if "://localhost:" in view.value and "reconnect=auto" in view.value:
+                    # the websocket's address: without it trame's client first POSTs to a session
+                    # manager at /paraview/ (405 in the console) and then falls back to this one
+                    view.value = view.value.replace("reconnect=auto", "reconnect=auto&amp;sessionURL=ws://USE_HOST/ws")
                 view.layout = widgets.Layout(width=f"{self.size[0]}px", height=f"{self.size[1] + 10}px")
                 return view
             except Exception as err:  # no trame server possible here: fall back, say why
                 self.backend = "image"
                 self.fallback_reason = f"{type(err).__name__}: {err}"
-        return widgets.Image(format="png", layout=widgets.Layout(width=f"{self.size[0]}px"))
+        # a white frame until the first render (an empty Image shows a broken-image icon)
+        layout = widgets.Layout(width=f"{self.size[0]}px")
+        return widgets.Image(value=_white_png(self.size), format="png", layout=layout)
+
+    # -- section (clip plane) ---------------------------------------------------------------
+    def _make_section(self, on: bool) -> None:
+        self.section = widgets.Checkbox(
+            value=on,
+            description="section",
+            tooltip="cut the surface with a plane to see inside (a lattice's struts behind its skin)",
+            indent=False,
+            layout=widgets.Layout(width="90px"),
+        )
+        self.section_axis = widgets.ToggleButtons(
+            options=("x", "y", "z"),
+            value="z",
+            tooltips=("plane normal to x", "plane normal to y", "plane normal to z"),
+            style={"button_width": "32px"},
+        )
+        self.section_at = widgets.FloatSlider(
+            value=0.5,
+            min=0.0,
+            max=1.0,
+            step=0.01,
+            description="keep below",
+            tooltip="where the plane cuts its axis, as a fraction of the shape's extent; the part below it is kept",
+            readout_format=".0%",
+            continuous_update=True,
+            style={"description_width": "80px"},
+            layout=widgets.Layout(width="300px"),
+        )
+        self.section_controls = widgets.HBox([self.section, self.section_axis, self.section_at])
+        for w in (self.section, self.section_axis, self.section_at):
+            w.observe(lambda _: self._section_changed(), names="value")
+
+    def _section_changed(self) -> None:
+        if self._quiet:
+            return
+        self._apply_section()
+        self.render()
+
+    def set_section(self, on: bool | None = None, axis: str | None = None, at: float | None = None) -> None:
+        """Turn the clip plane on/off, set the axis it cuts ("x", "y", "z") and where (0..1 of the extent)."""
+        self._quiet = True  # one render for the three changes
+        try:
+            if axis is not None:
+                self.section_axis.value = axis
+            if at is not None:
+                self.section_at.value = at
+            if on is not None:
+                self.section.value = on
+        finally:
+            self._quiet = False
+        self._section_changed()
+
+    def _apply_section(self) -> None:
+        """Clip the surface (and the cloud) at the plane: in the mapper, nothing re-meshed."""
+        actors = [a for a in (self.actor, self.overlay_actor) if a is not None]
+        for actor in actors:
+            actor.mapper.RemoveAllClippingPlanes()
+        if not self.section.value or self.poly.n_points == 0:
+            return
+        k = "xyz".index(self.section_axis.value)
+        lo, hi = self.poly.bounds[2 * k], self.poly.bounds[2 * k + 1]
+        origin = [0.0, 0.0, 0.0]
+        origin[k] = lo + self.section_at.value * (hi - lo)
+        normal = [0.0, 0.0, 0.0]
+        normal[k] = -1.0  # VTK keeps (x - origin) . normal >= 0: the part below the plane
+        self.plane.SetOrigin(origin)
+        self.plane.SetNormal(normal)
+        for actor in actors:
+            actor.mapper.AddClippingPlane(self.plane)
+
+    def visible_fraction(self) -> float:
+        """Fraction of the surface's vertices on the kept side of the section (1 with no section)."""
+        if not self.section.value or self.poly.n_points == 0:
+            return 1.0
+        k = "xyz".index(self.section_axis.value)
+        return float(np.mean(np.asarray(self.poly.points)[:, k] <= self.plane.GetOrigin()[k]))
 
     # -- geometry -----------------------------------------------------------------------
     def update(
@@ -139,7 +271,12 @@ class MeshView:
         clim: tuple[float, float] | None = None,
         reset_camera: bool = False,
     ) -> None:
-        """Replace the surface with ``mesh`` (a pyfrep_core Mesh or a PolyData), coloured by ``scalars`` (V,)."""
+        """Replace the surface with ``mesh`` (a pyfrep_core Mesh or a PolyData), coloured by ``scalars`` (V,).
+
+        NaN scalars (undefined values) are drawn in the neutral :data:`workbench.colours.UNDEFINED_COLOUR`.
+        ``title`` labels the colour bar (name and unit).  The camera is re-fitted when asked, on the
+        first surface, and when the surface leaves (or shrinks well inside) the box it was fitted to.
+        """
         new = mesh if isinstance(mesh, pv.PolyData) else mesh.to_pyvista()
         new = new.copy(deep=False)
         if "Normals" in new.point_data:  # grad f normals from the core: VTK shades with them, none recomputed
@@ -162,7 +299,24 @@ class MeshView:
             self.plotter.add_axes()
         if self.actor is not None:
             self._colour(scalars, title, cmap, clim)
-        self.render(reset_camera=first or reset_camera)
+            self._apply_section()
+        if first or reset_camera:
+            self.render(reset_camera=True)
+        elif self._outgrown():
+            self.render(refit=True)
+        else:
+            self.render()
+
+    def _outgrown(self) -> bool:
+        """The surface left the box the camera frames, or is under half its size (a size change)."""
+        if self.framed is None or self.poly.n_points == 0:
+            return self.poly.n_points > 0
+        new, old = np.asarray(self.poly.bounds), np.asarray(self.framed)
+        size_new = np.linalg.norm(new[1::2] - new[::2])
+        size_old = np.linalg.norm(old[1::2] - old[::2])
+        slack = 0.02 * size_old
+        outside = bool(np.any(new[::2] < old[::2] - slack) or np.any(new[1::2] > old[1::2] + slack))
+        return outside or size_new < 0.5 * size_old
 
     def _colour(self, scalars: np.ndarray | None, title: str, cmap: str, clim: tuple[float, float] | None) -> None:
         mapper = self.actor.mapper
@@ -182,10 +336,22 @@ class MeshView:
         mapper.scalar_range = clim
         mapper.lookup_table.cmap = cmap
         mapper.lookup_table.scalar_range = clim
+        mapper.lookup_table.nan_color = UNDEFINED_COLOUR
+        # interpolating texture coordinates towards a NaN vertex sweeps the whole map across the
+        # triangle (a striped sawtooth along creases); colours interpolate to grey instead
+        mapper.SetInterpolateScalarsBeforeMapping(not bool(np.isnan(scalars).any()))
         # one scalar bar, updated in place (pyvista's add/remove_scalar_bar each render the scene)
         if self.bar is None:
             self.bar = self.plotter.add_scalar_bar(
-                title=title or " ", mapper=mapper, n_labels=5, fmt="%.2g", vertical=True, position_x=0.84, width=0.07
+                title=title or " ",
+                mapper=mapper,
+                n_labels=5,
+                fmt="%.2g",
+                vertical=True,
+                position_x=0.8,
+                width=0.08,
+                title_font_size=16,
+                label_font_size=14,
             )
         self.bar.SetTitle(title or " ")
         self.bar.SetLookupTable(mapper.lookup_table)
@@ -224,6 +390,7 @@ class MeshView:
             mapper.scalar_range = (lo, hi if hi > lo else lo + 1e-12)
             mapper.lookup_table.cmap = "viridis"
             mapper.lookup_table.scalar_range = mapper.scalar_range
+        self._apply_section()
         if self.actor is None:
             self.render(reset_camera=True)
 
@@ -232,14 +399,25 @@ class MeshView:
             self.actor.prop.opacity = opacity
 
     # -- drawing ------------------------------------------------------------------------
-    def render(self, reset_camera: bool = False) -> None:
-        """Render on the calling (main) thread and push the frame to the widget."""
+    def render(self, reset_camera: bool = False, refit: bool = False) -> None:
+        """Render on the calling (main) thread and push the frame to the widget.
+
+        ``reset_camera``: the isometric view of the whole surface; ``refit``: the same direction,
+        distance and centre fitted to the surface's size.
+        """
         t0 = time.perf_counter()
         if reset_camera:
             self.plotter.view_isometric()
+        if reset_camera or refit:
             self.plotter.reset_camera()
+            if self.poly.n_points:
+                self.framed = tuple(self.poly.bounds)
         if self.backend == "trame":
-            self.plotter.render()  # the trame viewer listens to this render
+            # the trame viewer renders the window itself when it sends the frame: say that it
+            # changed and tell the viewer (plotter.render() would render once more before that)
+            self.plotter.render_window.Modified()
+            for callback in self.plotter._on_render_callbacks:
+                callback(self.plotter)
         else:
             # pyvista's render() does nothing before a first show(), and screenshot() re-reads the
             # last frame without rendering: render the window itself

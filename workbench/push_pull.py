@@ -59,10 +59,10 @@ class PushPullControls:
             style={"description_width": "110px"},
             layout=widgets.Layout(width="340px"),
         )
-        self.status = widgets.HTML(
-            "<small><b>push-pull</b>: click the surface to pick a point, then drag or type the pull "
-            "(the parameters that move it there are solved for, within their ranges)</small>",
-            layout=widgets.Layout(width="340px"),
+        self.status = widgets.HTML(layout=widgets.Layout(width="340px"))
+        self._say(
+            "click the surface to pick a point, then drag or type the pull "
+            "(the parameters that move it there are solved for, within their ranges)"
         )
         self.widget = widgets.VBox([self.status, self.pull])
         self.worker = LatestWorker(self._solve, self._solved, panel.main, settle=0.0)
@@ -75,7 +75,11 @@ class PushPullControls:
             self.picking = True
         except Exception as err:  # noqa: BLE001  (no interactor: pick() still works from code)
             self.picking = False
-            self.status.value += f"<br><small>(clicking not available: {html.escape(str(err))})</small>"
+            self._say(f"clicking not available ({html.escape(str(err))}): pick() from code")
+
+    def _say(self, text: str) -> None:
+        """The status line (its own line height: the widget's is one control high)."""
+        self.status.value = f"<div style='line-height:1.35;font-size:12px'><b>push-pull</b>: {text}</div>"
 
     # -- picking --------------------------------------------------------------------------------
     def _clicked(self, point: Any) -> None:
@@ -109,14 +113,14 @@ class PushPullControls:
             self._quiet = False
         self._draw(point, point)
         where = ", ".join(f"{v:.3f}" for v in point)
-        self.status.value = f"<small><b>push-pull</b>: picked ({where}); drag or type the pull</small>"
+        self._say(f"picked ({where}); drag or type the pull")
 
     # -- solving --------------------------------------------------------------------------------
     def _pulled(self, change: dict) -> None:
         if self._quiet or self.point is None:
             return
         if self.panel.model is not self.model:
-            self.status.value = "<small><b>push-pull</b>: another model is shown: pick a point again</small>"
+            self._say("another model is shown: pick a point again")
             return
         if self.panel.params != self._applied:  # sliders moved by hand since: start from them
             self.base = dict(self.panel.params)
@@ -131,9 +135,7 @@ class PushPullControls:
 
     def _solved(self, job: dict, result: Any, error: Exception | None) -> None:
         if error is not None:
-            self.status.value = (
-                f"<small><b>push-pull</b>: <span style='color:#b00'>{html.escape(str(error))}</span></small>"
-            )
+            self._say(f"<span style='color:#b00'>{html.escape(str(error))}</span>")
             return
         if job["model"] is not self.panel.model:
             return
@@ -157,7 +159,7 @@ class PushPullControls:
         else:
             held = f" ({', '.join(result.at_bound)} at a bound)" if result.at_bound else ""
             how = f"<span style='color:#a60'>{result.distance:.3g} short of the target{held}</span>"
-        self.status.value = f"<small><b>push-pull</b> {job['d']:+.4g}: {html.escape(changes)}; {how}</small>"
+        self._say(f"{job['d']:+.4g}: {html.escape(changes)}; {how}")
 
     def wait(self, timeout: float = 60.0) -> None:
         """Block until the last pull is solved and applied (scripts and tests)."""

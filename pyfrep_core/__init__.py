@@ -28,6 +28,7 @@ from .diff import div, grad, hessian, laplacian, p_laplacian, param_grad, projec
 from .distance import distance_error, fmm_distance, surface_distance, true_distance
 from .fitting import FitResult, fit
 from .freeform import FreeformModel, fit_freeform
+from .interval import IntervalUnsupported, bounds
 from .io import load_mesh, load_points, save_mesh, save_points
 from .lattices import *  # noqa: F403
 from .lattices import __all__ as _lattices_all
@@ -53,12 +54,14 @@ __all__ = [
     "Event",
     "FitResult",
     "FreeformModel",
+    "IntervalUnsupported",
     "Mesh",
     "Model",
     "Param",
     "Progress",
     "RedistancedSDF",
     "attach_curvatures",
+    "bounds",
     "curvatures",
     "delta_1",
     "distance_error",

@@ -202,27 +202,37 @@ def _like(*values: Any) -> torch.Tensor:
     raise _unsupported("an operation without tensors")
 
 
-_INF: dict[tuple, tuple[torch.Tensor, torch.Tensor]] = {}
+_CONSTANTS: dict[tuple, tuple[torch.Tensor, torch.Tensor, torch.Tensor]] = {}
 
 
-def _infs(t: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+def _constants(t: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """-inf, +inf and -eps as 0-d tensors of ``t``'s dtype and device (made once)."""
     key = (t.dtype, t.device)
-    got = _INF.get(key)
+    got = _CONSTANTS.get(key)
     if got is None:
-        got = (
-            torch.tensor(-math.inf, dtype=t.dtype, device=t.device),
-            torch.tensor(math.inf, dtype=t.dtype, device=t.device),
-        )
-        _INF[key] = got
+        eps = torch.finfo(t.dtype).eps
+        got = tuple(torch.tensor(v, dtype=t.dtype, device=t.device) for v in (-math.inf, math.inf, -eps))
+        _CONSTANTS[key] = got
     return got
 
 
+def _infs(t: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    return _constants(t)[:2]
+
+
 def _out1(lo: torch.Tensor, hi: torch.Tensor, expr: tuple | None = None) -> Interval:
-    """Round a correctly rounded result outward by one ulp."""
+    """Round a correctly rounded result outward: at least one ulp (``eps |v|``, plus ``tiny`` near 0).
+
+    ``eps |v| >= ulp(v)`` for a normal v, so ``v - eps |v|`` rounds to at most the float below v
+    (cheaper than ``torch.nextafter``, which is not vectorized on the CPU).
+    """
     if not lo.is_floating_point():
         return Interval.of(lo, hi, expr)
-    ninf, pinf = _infs(lo)
-    return Interval.of(torch.nextafter(lo, ninf), torch.nextafter(hi, pinf), expr)
+    neg_eps = _constants(lo)[2]
+    tiny = torch.finfo(lo.dtype).tiny
+    return Interval.of(
+        torch.addcmul(lo, lo.abs(), neg_eps).sub_(tiny), torch.addcmul(hi, hi.abs(), neg_eps, value=-1).add_(tiny), expr
+    )
 
 
 def _widen(
@@ -282,7 +292,7 @@ def _add(a: Any, b: Any, alpha: Any = None) -> Interval:
         expr = ("sumsq", a.expr[1], b.expr[1])
     out = _out1(al + bl, ah + bh, expr)
     if isinstance(a, Interval) and isinstance(b, Interval):
-        tight = _r_function(out, a, b, +1)
+        tight = _r_function(a, b, +1)
         out = out if tight is None else tight
     return out
 
@@ -293,12 +303,12 @@ def _sub(a: Any, b: Any, alpha: Any = None) -> Interval:
     (al, ah), (bl, bh) = _parts(a), _parts(b)
     out = _out1(al - bh, ah - bl)
     if isinstance(a, Interval) and isinstance(b, Interval):
-        tight = _r_function(out, a, b, -1)
+        tight = _r_function(a, b, -1)
         out = out if tight is None else tight
     return out
 
 
-def _r_function(natural: Interval, a: Interval, b: Interval, sign: int) -> Interval | None:
+def _r_function(a: Interval, b: Interval, sign: int) -> Interval | None:
     """``f1 + f2 +- sqrt(f1^2 + f2^2 + c)`` recognised: exact bounds by monotonicity (module docstring)."""
     s, r = (a, b) if a.expr and a.expr[0] == "add" else (b, a)
     if sign < 0 and s is not a:
@@ -312,17 +322,14 @@ def _r_function(natural: Interval, a: Interval, b: Interval, sign: int) -> Inter
 
     def value(x: torch.Tensor, y: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         rho = torch.sqrt(x * x + y * y + c)
-        # |error| of the float evaluation: a few roundings of terms of size |x| + |y| + rho
-        return x + y + sign * rho, x.abs() + y.abs() + rho
+        return (x + y + rho if sign > 0 else x + y - rho), rho
 
-    lo, elo = value(f1.lo, f2.lo)
-    hi, ehi = value(f1.hi, f2.hi)
-    eps = torch.finfo(lo.dtype).eps
-    lo, hi = lo - 4 * eps * elo, hi + 4 * eps * ehi
-    ninf, pinf = _infs(lo)
-    lo, hi = torch.nextafter(lo, ninf), torch.nextafter(hi, pinf)
-    lo, hi = _nan_safe(lo, hi)
-    return Interval.of(torch.maximum(lo, natural.lo), torch.minimum(hi, natural.hi))
+    (lo, rlo), (hi, rhi) = value(f1.lo, f2.lo), value(f1.hi, f2.hi)
+    # the float evaluation's error: a few roundings of terms of size |x| + |y| + rho <= 3 rho.
+    # The exact range lies inside the natural one, which it replaces (an unbounded operand
+    # gives NaN here: unknown, made infinite at the end)
+    err = 12.0 * torch.finfo(lo.dtype).eps
+    return _out1(lo - err * rlo, hi + err * rhi)
 
 
 def _rsub(a: Any, b: Any, alpha: Any = None) -> Interval:
@@ -352,8 +359,7 @@ def _mul(a: Any, b: Any) -> Interval:
         p1, p2, p3, p4 = al * bl, al * bh, ah * bl, ah * bh
         lo = torch.minimum(torch.minimum(p1, p2), torch.minimum(p3, p4))
         hi = torch.maximum(torch.maximum(p1, p2), torch.maximum(p3, p4))
-    lo, hi = _nan_safe(lo, hi)
-    return _out1(lo, hi)
+    return _out1(lo, hi)  # 0 * inf (an unbounded operand) gives NaN: unknown, made infinite at the end
 
 
 def _div(a: Any, b: Any, rounding_mode: Any = None) -> Interval:
@@ -365,6 +371,9 @@ def _div(a: Any, b: Any, rounding_mode: Any = None) -> Interval:
             al, ah = _parts(a)
             return _out1(al / c, ah / c) if c > 0 else _out1(ah / c, al / c)
     (al, ah), (bl, bh) = _parts(a), _parts(b)
+    if not isinstance(b, Interval):  # a constant divisor: x / 0 gives inf (or NaN) at points too
+        q1, q2 = al / bl, ah / bl
+        return _out1(torch.minimum(q1, q2), torch.maximum(q1, q2))
     like = _like(a, b)
     al, ah, bl, bh = (_tensor(v, like) for v in (al, ah, bl, bh))
     q1, q2, q3, q4 = al / bl, al / bh, ah / bl, ah / bh
@@ -373,7 +382,6 @@ def _div(a: Any, b: Any, rounding_mode: Any = None) -> Interval:
     zero = (bl <= 0) & (bh >= 0)  # a divisor that may be 0: unbounded
     ninf, pinf = _infs(lo)
     lo, hi = torch.where(zero, ninf, lo), torch.where(zero, pinf, hi)
-    lo, hi = _nan_safe(lo, hi)
     return _out1(lo, hi)
 
 
@@ -432,8 +440,7 @@ def _pow(a: Any, p: Any) -> Interval:
 
 
 def _widen_nan(lo: torch.Tensor, hi: torch.Tensor) -> Interval:
-    lo, hi = _nan_safe(lo, hi)
-    return _widen(lo, hi)
+    return _widen(lo, hi)  # a NaN bound stays NaN (unknown) and becomes infinite at the end
 
 
 def _pow_corners(xl: torch.Tensor, xh: torch.Tensor, yl: Any, yh: Any) -> Interval:
@@ -485,7 +492,6 @@ def _sqrt(a: Interval) -> Interval:
     # sqrt is defined on x >= 0: below, the model gives NaN itself; bound the defined part
     lo, hi = torch.sqrt(torch.clamp(a.lo, min=0)), torch.sqrt(a.hi)
     expr = ("rho", a.expr[1], a.expr[2], _sumsq_constant(a)) if a.expr and a.expr[0] == "sumsq" else None
-    lo, hi = _nan_safe(lo, hi)
     return _out1(lo, hi, expr)
 
 
@@ -693,11 +699,13 @@ def _periodic(fn: Callable, peak: float, trough: float) -> Callable:
         lo, hi = a.lo, a.hi
         fl, fh = fn(lo), fn(hi)
         low, high = torch.minimum(fl, fh), torch.maximum(fl, fh)
-        low = torch.where(_holds_point(lo, hi, trough, tau), torch.full_like(low, -1.0), low)
-        high = torch.where(_holds_point(lo, hi, peak, tau), torch.full_like(high, 1.0), high)
+        # -1 (+1) where a trough (peak) may lie inside; blended arithmetically (torch.where is slow
+        # on the CPU), the rounding of the blend being covered by the widening below
+        down, up = _holds_point(lo, hi, trough, tau).to(lo.dtype), _holds_point(lo, hi, peak, tau).to(lo.dtype)
+        low = torch.addcmul(low, down, low + 1.0, value=-1)
+        high = torch.addcmul(high, up, 1.0 - high)
         out = _widen(low, high, scale=torch.ones_like(low))  # absolute error of sin, cos: a few eps
-        lo2, hi2 = _nan_safe(out.lo, out.hi)
-        return _exact(torch.clamp(lo2, min=-1.0), torch.clamp(hi2, max=1.0))
+        return _exact(torch.clamp(out.lo, min=-1.0), torch.clamp(out.hi, max=1.0))
 
     return rule
 
@@ -845,7 +853,6 @@ def _sum(a: Interval, dim: Any = None, keepdim: bool = False, dtype: Any = None)
     lo, hi = a.lo.sum(*args, **kw), a.hi.sum(*args, **kw)
     terms = max(1, a.lo.numel() // max(1, lo.numel()))
     scale = torch.maximum(a.lo.abs(), a.hi.abs()).sum(*args, **kw)
-    lo, hi = _nan_safe(lo, hi)
     return _widen(lo, hi, scale=scale, ulps=terms + 1)
 
 
@@ -1061,6 +1068,46 @@ def _matmul(a: Any, b: Any) -> Interval:
 @_rule("__rmatmul__")
 def _rmatmul(a: Interval, b: Any) -> Interval:
     return _linear(a, b, left=False)
+
+
+def _contracted_length(equation: str, operands: Sequence[torch.Tensor]) -> int:
+    """How many products an einsum adds up for one output entry (the summed indices' sizes)."""
+    eq = equation.replace(" ", "")
+    if "..." in eq:
+        raise _unsupported("einsum with '...'")
+    lhs, _, rhs = eq.partition("->")
+    inputs = lhs.split(",")
+    if not rhs and "->" not in eq:
+        letters = "".join(inputs)
+        rhs = "".join(sorted(c for c in set(letters) if letters.count(c) == 1))
+    sizes = {}
+    for term, op in zip(inputs, operands, strict=True):
+        for c, n in zip(term, op.shape, strict=True):
+            sizes[c] = max(sizes.get(c, 1), int(n))
+    return max(1, math.prod(n for c, n in sizes.items() if c not in rhs))
+
+
+@_rule("einsum")
+def _einsum(equation: str, *operands: Any) -> Interval:
+    """A contraction linear in its one interval operand: midpoint and radius (the others constant)."""
+    if len(operands) == 1 and isinstance(operands[0], list | tuple):
+        operands = tuple(operands[0])
+    which = [i for i, v in enumerate(operands) if isinstance(v, Interval)]
+    if len(which) != 1:
+        raise _unsupported("einsum of several intervals")
+    k = which[0]
+    a = operands[k]
+    mid = 0.5 * a.lo + 0.5 * a.hi
+    rad = torch.maximum(a.hi - mid, mid - a.lo)  # rounded, widened below with the rest
+    consts = [v.abs() if isinstance(v, torch.Tensor) else abs(v) for v in operands]
+    center = torch.einsum(equation, *[mid if i == k else v for i, v in enumerate(operands)])
+    spread = torch.einsum(equation, *[rad if i == k else v for i, v in enumerate(consts)])
+    size = torch.einsum(
+        equation, *[torch.maximum(a.lo.abs(), a.hi.abs()) if i == k else v for i, v in enumerate(consts)]
+    )
+    terms = _contracted_length(equation, [a.lo if i == k else v for i, v in enumerate(operands)])
+    widen = spread * (1 + 4 * torch.finfo(spread.dtype).eps) + (terms + 4) * torch.finfo(size.dtype).eps * size
+    return _out1(center - widen, center + widen)
 
 
 @_rule("__repr__", "__str__", "__format__")

@@ -26,6 +26,7 @@ from .convolution import __all__ as _convolution_all
 from .curvature import Curvatures, attach_curvatures, curvatures, gaussian_curvature, mean_curvature
 from .diff import div, grad, hessian, laplacian, p_laplacian, param_grad, project_to_surface, value_and_grad
 from .distance import distance_error, fmm_distance, surface_distance, true_distance
+from .field_io import save_field
 from .fitting import FitResult, fit
 from .freeform import FreeformModel, fit_freeform
 from .interval import IntervalUnsupported, bounds
@@ -88,6 +89,7 @@ __all__ = [
     "project_to_surface",
     "redistance",
     "sample_surface",
+    "save_field",
     "save_mesh",
     "save_points",
     "sdf",

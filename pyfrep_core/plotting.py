@@ -138,16 +138,19 @@ def symmetric_limits(values: Any, percentile: float = 100.0) -> tuple[float, flo
     return (-m, m) if m > 0 else (-1.0, 1.0)
 
 
+def _is_shape(item: Any) -> bool:
+    """A Mesh (anything with ``to_pyvista``) or a pyvista data set (a point cloud: ``pv.PolyData(xyz)``)."""
+    return hasattr(item, "to_pyvista") or (hasattr(item, "points") and hasattr(item, "point_data"))
+
+
 def _panels(meshes: Any) -> list[list[Any]]:
-    """A Mesh, a list of Meshes (one per panel) or a list of lists (overlays) -> list of lists."""
-    if hasattr(meshes, "to_pyvista"):
-        return [[meshes]]
-    panels = []
-    for item in meshes:
-        panels.append([item] if hasattr(item, "to_pyvista") else list(item))
-    if not panels or any(not group or not all(hasattr(m, "to_pyvista") for m in group) for group in panels):
+    """A Mesh, a list of Meshes (one per panel) or a list of lists (overlays) -> pyvista data, per panel."""
+    if _is_shape(meshes):
+        meshes = [meshes]
+    panels = [[item] if _is_shape(item) else list(item) for item in meshes]
+    if not panels or any(not group or not all(_is_shape(m) for m in group) for group in panels):
         raise TypeError("render: meshes must be a Mesh, a list of Meshes or a list of lists of Meshes")
-    return panels
+    return [[m.to_pyvista() if hasattr(m, "to_pyvista") else m for m in group] for group in panels]
 
 
 def _per_panel(value: Any, n: int, name: str) -> list[Any]:
@@ -212,6 +215,7 @@ def render(
     size: tuple[int, int] | None = None,
     view: Any = "iso",
     nan_color: str = "black",
+    point_size: float = 4.0,
 ) -> Picture:
     """Render meshes off-screen, one panel each, cameras fitted to fill the frame; a PNG back.
 
@@ -219,7 +223,8 @@ def render(
     ----------
     meshes : Mesh, list of Mesh, or list of lists of Mesh
         One mesh; one mesh per panel (side by side); or per panel a list of meshes drawn together.
-        Anything with a ``to_pyvista()`` method works.
+        Anything with a ``to_pyvista()`` method works, and pyvista data sets: a point cloud
+        ``pyvista.PolyData(xyz)`` (with point data to colour by) is drawn as round points.
     titles : str or list of str, optional
         One title per panel, written above it in 18 px type.
     colors : str or list
@@ -230,7 +235,7 @@ def render(
         Required with ``scalars``: what the colour means (quantity and unit), shown above a
         horizontal colour bar under each panel.
     clim : (float, float), optional
-        Colour limits; default the data's range.  Give the same limits to panels you compare.
+        Colour limits, shared by the panels; default the data's range over all of them.
     cmap : str, optional
         Colour map; default :data:`DIVERGING` when ``clim`` straddles 0, else :data:`SEQUENTIAL`.
     size : (int, int), optional
@@ -240,6 +245,8 @@ def render(
         the camera and the up vector.
     nan_color : str
         Colour of vertices whose scalar is NaN (undefined), e.g. curvature on a crease.
+    point_size : float
+        Diameter in pixels of the points of a point cloud.
 
     Returns
     -------
@@ -258,6 +265,14 @@ def render(
     >>> drawn = (rgb.sum(axis=-1) < 700).any(axis=0)  # columns with something other than white
     >>> bool(drawn.mean() > 0.6)  # the ball and its bar span most of the width
     True
+
+    A point cloud, coloured by a one-sided quantity (a sequential map):
+
+    >>> import numpy as np, pyvista as pv
+    >>> cloud = pv.PolyData(np.random.default_rng(0).normal(size=(500, 3)))
+    >>> cloud.point_data["radius"] = np.linalg.norm(cloud.points, axis=1)
+    >>> render(cloud, scalars="radius", bar_title="distance from 0", size=(300, 300)).height
+    300
     """
     os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")  # before VTK's first window
     import pyvista as pv
@@ -273,12 +288,12 @@ def render(
     width, height = int(size[0]), int(size[1])
     if width <= 0 or height <= 0:
         raise ValueError(f"render: size must be two positive integers, got {size!r}")
-    if scalars is not None and cmap is None:
-        lo_hi = clim
-        if lo_hi is None:
+    if scalars is not None:
+        if clim is None:  # one range for every panel, so that equal colours mean equal values
             values = np.concatenate([np.ravel(m.point_data[scalars]) for group in panels for m in group])
-            lo_hi = (np.nanmin(values), np.nanmax(values))
-        cmap = DIVERGING if lo_hi[0] < 0 < lo_hi[1] else SEQUENTIAL
+            clim = (float(np.nanmin(values)), float(np.nanmax(values)))
+        if cmap is None:
+            cmap = DIVERGING if clim[0] < 0 < clim[1] else SEQUENTIAL
 
     top = (_TITLE_PX + 14) / height if any(titles) else 0.03
     bottom = (_BAR_Y + _BAR_H + _BAR_TITLE_PX + 14) / height if scalars is not None else 0.03
@@ -289,17 +304,21 @@ def render(
             plotter.subplot(0, i)
             group_colors = colors[i] if isinstance(colors[i], (list, tuple)) else [colors[i]] * len(group)
             for mesh, color in zip(group, group_colors):
-                kwargs: dict[str, Any] = dict(smooth_shading=True, specular=0.2, show_scalar_bar=False)
+                kwargs: dict[str, Any] = dict(show_scalar_bar=False)
+                if mesh.n_cells and not mesh.n_verts:  # a surface
+                    kwargs.update(smooth_shading=True, specular=0.2)
+                else:  # a point cloud
+                    kwargs.update(render_points_as_spheres=True, point_size=point_size)
                 if scalars is not None:
                     kwargs.update(scalars=scalars, clim=clim, cmap=cmap, nan_color=nan_color)
                 else:
                     kwargs.update(color=color)
-                plotter.add_mesh(mesh.to_pyvista(), **kwargs)
+                plotter.add_mesh(mesh, **kwargs)
             if scalars is not None:
                 # labels under the bar and the caption, a text actor of its own, above it: VTK's own
                 # title shares the labels' row and overlaps them on a horizontal bar
                 bar = plotter.add_scalar_bar(
-                    title=" ",
+                    title=" " * (i + 1),  # pyvista keeps one bar per title: one title per panel
                     vertical=False,
                     position_x=0.2,
                     position_y=_BAR_Y / height,
@@ -324,7 +343,7 @@ def render(
                 text.prop.color = "black"
                 text.GetTextProperty().SetJustificationToCentered()
                 text.GetTextProperty().SetVerticalJustificationToTop()
-            points = np.vstack([m.vertices for m in group])
+            points = np.vstack([np.asarray(m.points) for m in group])
             if len(points) > 50_000:
                 points = points[:: len(points) // 50_000 + 1]
             _fit_camera(plotter.camera, points, view, (width / n) / height, (bottom, 1.0 - top))

@@ -220,15 +220,21 @@ def _infs(t: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     return _constants(t)[:2]
 
 
-def _out1(lo: torch.Tensor, hi: torch.Tensor, expr: tuple | None = None) -> Interval:
-    """Round a correctly rounded result outward: at least one ulp (``eps |v|``, plus ``tiny`` near 0).
+SMALL = 8192  # below this many values a call's overhead, not its arithmetic, dominates
 
-    ``eps |v| >= ulp(v)`` for a normal v, so ``v - eps |v|`` rounds to at most the float below v
-    (cheaper than ``torch.nextafter``, which is not vectorized on the CPU).
+
+def _out1(lo: torch.Tensor, hi: torch.Tensor, expr: tuple | None = None) -> Interval:
+    """Round a correctly rounded result outward by at least one ulp.
+
+    Small tensors: ``torch.nextafter`` (one call a bound).  Large ones: ``v -+ (eps |v| + tiny)``
+    (``eps |v| >= ulp(v)`` for a normal v, so it rounds to at most the float below v; three calls,
+    but vectorized, where nextafter is not on the CPU).
     """
     if not lo.is_floating_point():
         return Interval.of(lo, hi, expr)
-    neg_eps = _constants(lo)[2]
+    ninf, pinf, neg_eps = _constants(lo)
+    if lo.numel() <= SMALL:
+        return Interval.of(torch.nextafter(lo, ninf), torch.nextafter(hi, pinf), expr)
     tiny = torch.finfo(lo.dtype).tiny
     return Interval.of(
         torch.addcmul(lo, lo.abs(), neg_eps).sub_(tiny), torch.addcmul(hi, hi.abs(), neg_eps, value=-1).add_(tiny), expr
@@ -468,7 +474,7 @@ _rule("div", "divide", "true_divide", "__truediv__", "__div__")(_div)
 _rule("__rtruediv__", "__rdiv__")(_rdiv)
 _rule("neg", "negative", "__neg__")(_neg)
 _rule("abs", "absolute", "__abs__")(_abs)
-_rule("pow", "__pow__", "float_power")(_pow)
+_rule("pow", "__pow__")(_pow)
 _rule("__rpow__")(_rpow)
 
 

@@ -112,10 +112,10 @@ def test_slider_remeshes_and_the_view_changes(page):
 
     handle = page.locator(".widget-slider .noUi-handle").first
     handle.focus()
-    for _ in range(25):  # 25 steps of range/200: r 0.5 -> 0.575
+    for _ in range(25):  # 25 steps of 0.002 (range/200 rounded down to 1, 2, 5 x 10^k): r 0.5 -> 0.55
         page.keyboard.press("ArrowRight")
     page.wait_for_function(
-        "document.body.innerText.includes('r = 0.575') && document.body.innerText.includes('128³')", timeout=240_000
+        "document.body.innerText.includes('r = 0.55') && document.body.innerText.includes('128³')", timeout=240_000
     )
     after_text = status_text(page)
     assert re.search(r"remeshed in \d+ ms \((compiled|eager)\), \d+ triangles", after_text)
@@ -168,6 +168,70 @@ def test_fit_runs_chart_grows_and_loss_goes_down(page):
     first = float(re.search(r"first ([0-9.e+-]+)", progress).group(1))
     final = float(re.search(r"loss ([0-9.e+-]+), stages", page.locator(".fit-done").inner_text()).group(1))
     assert final < first
+
+
+STUDENT_MODEL = """\
+import torch
+from pyfrep_core import *
+
+
+@model(bounds=((-1.2,) * 3, (1.2,) * 3), r=Param(0.9, 0.3, 1.0, label="ball radius"), h=Param(0.3, 0.05, 0.5))
+def student_ball(x, r, h):
+    return difference(sphere(x, r=r), cylZ(x, r=h))
+"""
+
+
+def test_model_typed_in_the_editor_opens_in_the_shape_view(page):
+    page.get_by_role("tab", name="Shape").click()
+    page.wait_for_function("document.body.innerText.includes('128³')", timeout=240_000)
+    view = view_locator(page)
+    view.scroll_into_view_if_needed()
+    time.sleep(2.0)
+    before = view.screenshot(path=str(ARTIFACTS / "model_shape_before.png"))
+
+    page.get_by_role("tab", name="Model").click()
+    panel = page.locator(".pyfrep-model-panel")
+    editor = panel.locator(".pyfrep-code textarea")
+    editor.wait_for(timeout=240_000)
+    editor.fill(STUDENT_MODEL.rsplit("\n", 2)[0] + "\n")  # all but the last line, then type it
+    editor.press("End")
+    editor.press_sequentially("    return difference(sphere(x, r=r), cylZ(x, r=h))\n")
+    gutter, lines = panel.locator(".pyfrep-gutter pre"), str(STUDENT_MODEL.count("\n") + 1)
+    deadline = time.monotonic() + 60  # the kernel renumbers the gutter as the text arrives
+    while gutter.inner_text().split()[-1] != lines and time.monotonic() < deadline:
+        time.sleep(0.2)
+    page.screenshot(path=str(ARTIFACTS / "model_typed.png"))
+    assert gutter.inner_text().split()[-1] == lines
+    panel.get_by_role("button", name="Run").click()
+    page.wait_for_function("document.body.innerText.includes('student_ball built in')", timeout=240_000)
+    page.screenshot(path=str(ARTIFACTS / "model_tab.png"))
+    status = panel.locator(".widget-html-content", has_text="student_ball built").inner_text()
+    assert "opened in Shape" in status, status
+    assert panel.get_by_text("ball radius").first.is_visible()  # the preview's slider for r
+
+    page.get_by_role("tab", name="Shape").click()
+    page.wait_for_function(
+        "document.body.innerText.includes('r = 0.9, h = 0.3') && document.body.innerText.includes('128³')",
+        timeout=240_000,
+    )
+    assert page.get_by_text("ball radius").first.is_visible()
+    deadline = time.monotonic() + 30  # the picture follows the render
+    while True:
+        after = view.screenshot(path=str(ARTIFACTS / "model_shape_after.png"))
+        changed = (np.abs(pixels(after) - pixels(before)).sum(-1) > 30).mean()
+        if changed > 0.05 or time.monotonic() > deadline:
+            break
+        time.sleep(1.0)
+    assert changed > 0.05, f"only {changed:.2%} of the shape view's pixels changed"
+
+    # a syntax error: the line is marked in the gutter and named in the status
+    page.get_by_role("tab", name="Model").click()
+    editor.fill(STUDENT_MODEL.replace("cylZ(x, r=h))", "cylZ(x, r=h)"))
+    panel.get_by_role("button", name="Run").click()
+    bad = panel.locator(".pyfrep-gutter .bad")
+    bad.wait_for(timeout=60_000)
+    assert bad.inner_text() == "7"  # the return line, whose parenthesis is never closed
+    assert "line 7" in panel.inner_text()
 
 
 def test_nothing_is_fetched_from_the_internet(page, external):

@@ -278,11 +278,11 @@ def test_shape_slider_remeshes_and_renders(page):
 
     handle = page.locator(".widget-slider .noUi-handle").first
     handle.focus()
-    for _ in range(25):  # 25 steps of range/200: r 0.5 -> 0.575
+    for _ in range(25):  # 25 steps of 0.002 (range/200 rounded down to 1, 2, 5 x 10^k): r 0.5 -> 0.55
         page.keyboard.press("ArrowRight")
-    page.wait_for_function("document.body.innerText.includes('r = 0.575')", timeout=30_000)
+    page.wait_for_function("document.body.innerText.includes('r = 0.55')", timeout=30_000)
     after_text = status.inner_text()
-    assert re.search(r"remeshed in \d+ ms \(eager\), \d+ triangles \(48³; r = 0.575\)", after_text), after_text
+    assert re.search(r"remeshed in \d+ ms \(eager\), \d+ triangles \(48³; r = 0.55\)", after_text), after_text
     n_before = int(re.search(r"(\d+) triangles", before_text).group(1))
     n_after = int(re.search(r"(\d+) triangles", after_text).group(1))
     assert n_after != n_before

@@ -107,6 +107,8 @@ def test_run_opens_the_model_in_every_panel_with_its_sliders():
             assert list(sliders) == ["r", "h"]
             assert (sliders["r"].min, sliders["r"].max, sliders["r"].value) == (0.3, 1.0, 0.7)
             assert sliders["r"].description == "ball radius" and sliders["h"].description == "h"
+            for s in sliders.values():  # the default on the step grid: the browser would round it
+                assert ((s.value - s.min) / s.step) == pytest.approx(round((s.value - s.min) / s.step), abs=1e-9)
         # the shape shown is the ball with a hole: a vertex on the hole's wall is at radius h
         verts = shape.mesh.vertices
         wall = np.abs(verts[:, 2]) < 0.3

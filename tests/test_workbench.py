@@ -60,7 +60,8 @@ def test_slider_remeshes_in_place_and_updates_status(panel):
     # slider range, step and label come from the declaration
     s, p = panel.sliders["r"], fig1_part.params["r"]
     assert (s.min, s.max, s.description) == (p.lower, p.upper, p.label)
-    assert s.step == pytest.approx((p.upper - p.lower) / 200)
+    assert s.step <= (p.upper - p.lower) / 200  # and the default on its grid (the browser rounds to it)
+    assert (p.default - p.lower) / s.step == pytest.approx(round((p.default - p.lower) / s.step), abs=1e-9)
 
 
 def test_compiled_evaluation_gives_the_eager_mesh_and_colours(panel):

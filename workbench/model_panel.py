@@ -179,7 +179,7 @@ class ModelPanel(widgets.VBox):
             raise ValueError(f"template must be one of {', '.join(map(repr, TEMPLATES))}, got {template!r}")
         self.namespace = _user_namespace() if namespace is None else namespace
         self.backend = backend
-        self.preview_options = {"resolution": 96, "size": (520, 420), **(preview or {})}
+        self.preview_options = {"resolution": 96, "size": (480, 380), **(preview or {})}
         self.on_run: list[Callable[[Model], Any]] = []
         self.model: Model | None = None
         self.shape: Any = None
@@ -187,7 +187,7 @@ class ModelPanel(widgets.VBox):
         self.template = widgets.Dropdown(
             options=list(TEMPLATES), value=template, description="template", layout=widgets.Layout(width="360px")
         )
-        self.editor = CodeEditor(TEMPLATES[template], width="600px")
+        self.editor = CodeEditor(TEMPLATES[template], width="540px")
         self.run_button = widgets.Button(
             description="Run", button_style="success", icon="play", tooltip="build the model and open it in every tab"
         )
@@ -198,15 +198,16 @@ class ModelPanel(widgets.VBox):
         self.run_button.on_click(lambda _: self.run())
         left = widgets.VBox(
             [
-                widgets.HTML(HELP, layout=widgets.Layout(width="640px")),
+                widgets.HTML(HELP, layout=widgets.Layout(width="590px")),
                 widgets.HBox([self.template, self.run_button]),
                 self.editor,
                 self.status,
                 self.error,
             ],
-            layout=widgets.Layout(width="660px"),
+            layout=widgets.Layout(width="600px", flex="0 0 auto", margin="0 16px 0 0"),
         )
         super().__init__([widgets.HBox([left, self.preview_box])])
+        self.add_class("pyfrep-model-panel")
 
     def load_template(self, name: str) -> None:
         """Put template ``name`` in the editor (replacing its code)."""
@@ -257,11 +258,14 @@ class ModelPanel(widgets.VBox):
         params = ", ".join(f"{k} in [{p.lower:g}, {p.upper:g}]" for k, p in model.params.items()) or "no parameters"
         where = f"; opened in {', '.join(opened)} (the other tabs open it when shown)" if opened else ""
         note = "".join(f"<br><span style='color:#a60'>{html.escape(w)}</span>" for w in warnings)
-        self.status.value = (
+        self._say(
             f"<b>{html.escape(model.__name__)}</b> built in {1000 * seconds:.0f} ms ({html.escape(params)})"
             f"{html.escape(where)}{note}"
         )
         return model
+
+    def _say(self, text: str) -> None:
+        self.status.value = f"<div style='line-height:1.4'>{text}</div>"
 
     def _failed(self, err: BaseException | None, what: str, message: str = "") -> None:
         line = None
@@ -269,7 +273,7 @@ class ModelPanel(widgets.VBox):
             message, line = user_traceback(err)
         self.editor.mark(line)
         at = f" at line {line}" if line is not None else ""
-        self.status.value = f"<span style='color:#b00'><b>error in {html.escape(what)}{at}</b></span>"
+        self._say(f"<span style='color:#b00'><b>error in {html.escape(what)}{at}</b></span>")
         self.error.value = (
             "<pre style='color:#900;background:#fff3f3;padding:6px;white-space:pre-wrap;max-width:640px'>"
             f"{html.escape(message)}</pre>"
@@ -284,9 +288,18 @@ class ModelPanel(widgets.VBox):
             from .shape_panel import ShapePanel
 
             self.shape = ShapePanel(model, backend=self.backend, **self.preview_options)
-            self.preview_box.children = (self.shape,)
+            self.preview_box.children = (self._stacked(self.shape),)
         else:
             self.shape.set_model(model)
+
+    @staticmethod
+    def _stacked(shape: Any) -> widgets.Widget:
+        """The shape panel with its view above its sliders (beside the editor, the page stays narrow)."""
+        row = shape.children[0] if shape.children else None
+        if isinstance(row, widgets.HBox) and len(row.children) == 2:
+            controls, view = row.children
+            return widgets.VBox([view, controls, *shape.children[1:]])
+        return shape
 
 
 def model_panel(backend: str = "auto", **kwargs: Any) -> ModelPanel:

@@ -45,18 +45,18 @@ COLOURINGS = ("sensitivity", "plain")
 
 
 def param_slider(name: str, param: Any, value: float | None = None) -> widgets.FloatSlider:
-    """A slider for one declared ``Param``: its range, a step of range/200, its label in full
-    (a label column wide enough for the paper's longest, and the label, name and range as tooltip).
+    """A slider for one declared ``Param``: its range, a step of about range/200 on whose grid the
+    default lies (:func:`slider_step`), its label in full (a label column wide enough for the
+    paper's longest, and the label, name and range as tooltip).
 
     Examples
     --------
     >>> from pyfrep_core import Param
     >>> s = param_slider("r", Param(0.5, 0.2, 0.8, label="cylinder radius"))
     >>> s.description, s.min, s.max, round(s.step, 6), s.tooltip
-    ('cylinder radius', 0.2, 0.8, 0.003, 'cylinder radius (r), from 0.2 to 0.8')
+    ('cylinder radius', 0.2, 0.8, 0.002, 'cylinder radius (r), from 0.2 to 0.8')
     """
-    span = param.upper - param.lower
-    step = span / 200.0
+    step = slider_step(param.lower, param.upper, param.default)
     decimals = max(0, int(np.ceil(-np.log10(step))) + 1) if step < 1 else 0
     return widgets.FloatSlider(
         value=param.default if value is None else value,
@@ -70,6 +70,29 @@ def param_slider(name: str, param: Any, value: float | None = None) -> widgets.F
         style={"description_width": f"{LABEL_PX}px"},
         layout=widgets.Layout(width=f"{LABEL_PX + 220}px"),
     )
+
+
+def slider_step(lower: float, upper: float, default: float) -> float:
+    """A step of at most (upper - lower)/200, 1, 2 or 5 times a power of ten when the default lies
+    on its grid from ``lower``, else the range/200-ish divisor of (default - lower).
+
+    The browser's slider rounds its value to ``lower + k * step``: a default (or a value set by
+    push-pull) off that grid would come back moved by up to half a step.
+
+    Examples
+    --------
+    >>> slider_step(0.2, 0.8, 0.5), slider_step(0.3, 1.0, 0.9), slider_step(1.0, 10.0, 9.0)
+    (0.002, 0.002, 0.02)
+    >>> round(slider_step(0.0, 1.0, 1 / 3), 6)  # no decimal grid holds 1/3
+    0.004975
+    """
+    raw = (upper - lower) / 200.0
+    offset = default - lower
+    power = 10.0 ** np.floor(np.log10(raw))
+    for nice in (5 * power, 2 * power, power, power / 2, power / 5, power / 10):
+        if nice <= raw * (1 + 1e-9) and abs(offset / nice - round(offset / nice)) < 1e-6:
+            return float(nice)
+    return offset / max(1, round(offset / raw)) if offset > 0 else raw
 
 
 def symmetric_range(values: np.ndarray, percentile: float = 99.0) -> tuple[float, float]:

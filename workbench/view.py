@@ -144,6 +144,7 @@ class MeshView:
         self.actor: Any = None
         self.overlay_poly: pv.PolyData | None = None
         self.overlay_actor: Any = None
+        self.overlays: dict[str, tuple[pv.PolyData, Any]] = {}  # further named clouds (a fit's outliers)
         self.bar: Any = None  # the scalar bar actor
         self.renders = 0
         self.last_render_s = 0.0
@@ -238,7 +239,7 @@ class MeshView:
 
     def _apply_section(self) -> None:
         """Clip the surface (and the cloud) at the plane: in the mapper, nothing re-meshed."""
-        actors = [a for a in (self.actor, self.overlay_actor) if a is not None]
+        actors = [a for a in (self.actor, self.overlay_actor, *(a for _, a in self.overlays.values())) if a is not None]
         for actor in actors:
             actor.mapper.RemoveAllClippingPlanes()
         if not self.section.value or self.poly.n_points == 0:
@@ -298,6 +299,7 @@ class MeshView:
             )
             self.plotter.add_axes()
         if self.actor is not None:
+            self.actor.visibility = True  # shown again after hide_surface()
             self._colour(scalars, title, cmap, clim)
             self._apply_section()
         if first or reset_camera:
@@ -340,59 +342,88 @@ class MeshView:
         # interpolating texture coordinates towards a NaN vertex sweeps the whole map across the
         # triangle (a striped sawtooth along creases); colours interpolate to grey instead
         mapper.SetInterpolateScalarsBeforeMapping(not bool(np.isnan(scalars).any()))
-        # one scalar bar, updated in place (pyvista's add/remove_scalar_bar each render the scene)
-        if self.bar is None:
-            self.bar = self.plotter.add_scalar_bar(
-                title=title or " ",
-                mapper=mapper,
-                n_labels=5,
-                fmt="%.2g",
-                vertical=True,
-                position_x=0.8,
-                width=0.08,
-                title_font_size=16,
-                label_font_size=14,
-            )
-        self.bar.SetTitle(title or " ")
-        self.bar.SetLookupTable(mapper.lookup_table)
-        self.bar.SetVisibility(True)
+        self._show_bar(mapper, title)
 
-    def overlay_points(self, points: np.ndarray | None, scalars: np.ndarray | None = None, title: str = "") -> None:
-        """Show a point cloud (replaced in place), coloured by ``scalars``; None removes it."""
+    def overlay_points(
+        self,
+        points: np.ndarray | None,
+        scalars: np.ndarray | None = None,
+        title: str = "",
+        *,
+        name: str = "cloud",
+        color: str = "#1f77b4",
+        clim: tuple[float, float] | None = None,
+        bar: bool = False,
+    ) -> None:
+        """Show a point cloud (replaced in place), coloured by ``scalars``; None removes it.
+
+        Several clouds can be shown at once under different ``name`` s (a fit's inliers and its
+        outliers in a colour of their own); "cloud" is ``overlay_poly``/``overlay_actor``.
+        ``bar``: the colour bar (captioned ``title``) tells the cloud's colours instead of the surface's.
+        """
+        poly, actor = (
+            (self.overlay_poly, self.overlay_actor) if name == "cloud" else self.overlays.get(name, (None, None))
+        )
         if points is None:
-            if self.overlay_actor is not None:
-                self.overlay_actor.visibility = False
+            if actor is not None:
+                actor.visibility = False
             return
-        cloud = pv.PolyData(np.asarray(points, dtype=np.float64))
+        cloud = pv.PolyData(np.asarray(points, dtype=np.float64).reshape(-1, 3))
         if scalars is not None:
             cloud.point_data["values"] = np.asarray(scalars, dtype=np.float64)
-        if self.overlay_poly is None:
-            self.overlay_poly = pv.PolyData()
-        self.overlay_poly.shallow_copy(cloud)
-        if self.overlay_actor is None:
-            self.overlay_actor = self.plotter.add_mesh(
-                self.overlay_poly,
+        if poly is None:
+            poly = pv.PolyData()
+        poly.shallow_copy(cloud)
+        if actor is None:
+            actor = self.plotter.add_mesh(
+                poly,
                 scalars="values" if scalars is not None else None,
                 cmap="viridis",
                 point_size=5,
                 render_points_as_spheres=True,
-                color="#1f77b4",
-                name="cloud",
+                color=color,
+                name=name,
                 show_scalar_bar=False,
             )
-        self.overlay_actor.visibility = True
-        mapper = self.overlay_actor.mapper
+        if name == "cloud":
+            self.overlay_poly, self.overlay_actor = poly, actor
+        else:
+            self.overlays[name] = (poly, actor)
+        actor.visibility = True
+        actor.prop.color = color
+        mapper = actor.mapper
         mapper.scalar_visibility = scalars is not None
         if scalars is not None:
             mapper.SetScalarModeToUsePointFieldData()
             mapper.SelectColorArray("values")
-            lo, hi = float(np.min(scalars)), float(np.max(scalars))
+            lo, hi = clim if clim is not None else (float(np.nanmin(scalars)), float(np.nanmax(scalars)))
             mapper.scalar_range = (lo, hi if hi > lo else lo + 1e-12)
             mapper.lookup_table.cmap = "viridis"
             mapper.lookup_table.scalar_range = mapper.scalar_range
+            if bar:
+                self._show_bar(mapper, title)
         self._apply_section()
         if self.actor is None:
             self.render(reset_camera=True)
+
+    def _show_bar(self, mapper: Any, title: str) -> None:
+        """The one colour bar, telling ``mapper``'s colours (the surface's, or a cloud's)."""
+        # one scalar bar, updated in place (pyvista's add/remove_scalar_bar each render the scene)
+        if self.bar is None:
+            self.bar = self.plotter.add_scalar_bar(
+                title=title or " ", mapper=mapper, n_labels=5, fmt="%.2g", vertical=True, position_x=0.8,
+                width=0.08, title_font_size=16, label_font_size=14,
+            )  # fmt: skip
+        self.bar.SetTitle(title or " ")
+        self.bar.SetLookupTable(mapper.lookup_table)
+        self.bar.SetVisibility(True)
+
+    def hide_surface(self) -> None:
+        """Hide the surface (a stale one, until the next ``update``): the camera then frames the clouds."""
+        if self.actor is not None:
+            self.actor.visibility = False
+        if self.bar is not None:
+            self.bar.SetVisibility(False)
 
     def set_opacity(self, opacity: float) -> None:
         if self.actor is not None:

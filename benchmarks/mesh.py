@@ -16,7 +16,17 @@ Times are the median of a few runs after a warm-up; on a machine shared with oth
 are noisy (torch's threads wait for each other when a core is taken), so polygonize is also
 timed with one torch thread; the load average is printed with the figures.
 
-Run: ``.venv/bin/python benchmarks/mesh.py [runs]`` (PYFREP_QUICK=1: 3 runs).
+Dual contouring (``polygonize(method="dc")``, issue 13): the Fig. 1 part at 128^3- and
+256^3-equivalent voxel size (and 512^3, 1024^3 unless PYFREP_QUICK), a closed gyroid block and
+the paper's microstructure, each against marching cubes at the same voxel size: seconds,
+triangles, volume error (closed forms: the Fig. 1 part; the gyroid solid over [-1, 1]^3 is half
+the cube, 4, since f(-x) = -f(x)), faces pymeshlab flags as self-intersecting, and peak memory
+(the child process's VmHWM less its resident size before meshing).  The peer named by the
+issue, libfive, is not on PyPI as a library (its Python package needs the C++ build): "peer not
+available" is printed instead of its figures.
+
+Run: ``.venv/bin/python benchmarks/mesh.py [runs]`` (PYFREP_QUICK=1: 3 runs);
+``benchmarks/mesh.py dc [runs]``: the dual-contouring table only.
 """
 
 from __future__ import annotations
@@ -143,5 +153,102 @@ def main() -> None:
     print(f"  load average after the runs: {', '.join(f'{x:.2f}' for x in os.getloadavg())}")
 
 
+# ----------------------------------------------------------------------------- dual contouring
+
+
+def gyroid_block(x: torch.Tensor) -> torch.Tensor:
+    """The gyroid solid (paper's lattice, period 1) cut to [-1, 1]^3: exact volume 4."""
+    from pyfrep_core import block, gyroid, intersection
+
+    return intersection(gyroid(x), block(x, vertex=(-1.0, -1.0, -1.0), dx=2.0, dy=2.0, dz=2.0))
+
+
+CASES = {
+    "fig1": (lambda: fig1_part, BOUNDS, EXACT_VOLUME),
+    "gyroid": (lambda: gyroid_block, BOUNDS, 4.0),
+    "microstructure": (lambda: __import__("pyfrep_core.models", fromlist=["x"]).microstructure, None, None),
+}
+
+
+def _resident_kib(key: str) -> int:
+    with open("/proc/self/status") as status:
+        for line in status:
+            if line.startswith(key):
+                return int(line.split()[1])
+    return 0
+
+
+def _child(case: str, method: str, n: int, runs: int) -> None:
+    """Mesh once to warm up, then ``runs`` times; print seconds, triangles, volume, flagged faces, MiB."""
+    import json
+
+    from pyfrep_core.meshing.dual_contouring import dual_contour  # noqa: F401  (imported before measuring)
+
+    make, bounds, _ = CASES[case]
+    f = make()
+    polygonize(f, bounds, min(n, 64), method=method, progress=False)
+    before = _resident_kib("VmRSS")
+    seconds, mesh = median_seconds(lambda: polygonize(f, bounds, n, method=method, progress=False), runs)
+    peak = _resident_kib("VmHWM") - before
+    try:
+        import pymeshlab
+
+        ms = pymeshlab.MeshSet()
+        ms.add_mesh(pymeshlab.Mesh(mesh.vertices, mesh.faces))
+        ms.compute_selection_by_self_intersections_per_face()
+        flagged = int(ms.current_mesh().selected_face_number())
+    except ImportError:
+        flagged = -1
+    print(json.dumps([seconds, mesh.n_faces, mesh.volume(), flagged, peak / 1024]))
+
+
+def measure(case: str, method: str, n: int, runs: int) -> tuple[float, int, float, int, float]:
+    import json
+    import subprocess
+
+    out = subprocess.run(
+        [sys.executable, __file__, "child", case, method, str(n), str(runs)], capture_output=True, text=True
+    )
+    if out.returncode:
+        raise RuntimeError(out.stderr[-2000:])
+    return tuple(json.loads(out.stdout.strip().splitlines()[-1]))
+
+
+def dual_contouring_table(runs: int) -> None:
+    print(
+        "dual contouring (octree, certified pruning) against marching cubes at the same voxel size "
+        f"(median of {runs} runs, each case in its own process; load average "
+        f"{', '.join(f'{x:.2f}' for x in os.getloadavg())})"
+    )
+    print("  libfive: peer not available")
+    rows = [("fig1", 128), ("fig1", 256), ("gyroid", 128), ("microstructure", 128)]
+    if not QUICK:
+        rows += [("fig1", 512), ("fig1", 1024)]
+    for case, n in rows:
+        exact = CASES[case][2]
+        line = []
+        figures = {}
+        for method in ("mc", "dc"):
+            if method == "mc" and n > 512:
+                line.append("mc: skipped (dense grid)")
+                continue
+            reps = runs if n <= 256 else 1
+            seconds, faces, volume, flagged, mib = measure(case, method, n, reps)
+            figures[method] = seconds
+            err = f"volume error {volume - exact:+.1e}" if exact is not None else f"volume {volume:.4f}"
+            line.append(
+                f"{method} {seconds:7.3f} s {faces:9d} triangles {err} self-int. faces {flagged} {mib:6.0f} MiB"
+            )
+        ratio = f"  mc / dc = {figures['mc'] / figures['dc']:.2f}x" if len(figures) == 2 else ""
+        print(f"  {case:>14} {n:4d}^3  " + "\n                         ".join(line) + ratio)
+    print(f"  load average after the runs: {', '.join(f'{x:.2f}' for x in os.getloadavg())}")
+
+
 if __name__ == "__main__":
-    main()
+    if len(sys.argv) > 1 and sys.argv[1] == "child":
+        _child(sys.argv[2], sys.argv[3], int(sys.argv[4]), int(sys.argv[5]))
+    elif len(sys.argv) > 1 and sys.argv[1] == "dc":
+        dual_contouring_table(int(sys.argv[2]) if len(sys.argv) > 2 else (3 if QUICK else 5))
+    else:
+        main()
+        dual_contouring_table(int(sys.argv[1]) if len(sys.argv) > 1 else (3 if QUICK else 5))

@@ -265,6 +265,10 @@ def render(
     >>> drawn = (rgb.sum(axis=-1) < 700).any(axis=0)  # columns with something other than white
     >>> bool(drawn.mean() > 0.6)  # the ball and its bar span most of the width
     True
+    >>> render(ball, scalars="height")
+    Traceback (most recent call last):
+    ...
+    ValueError: render: bar_title is required with scalars (say what the colour means)
 
     A point cloud, coloured by a one-sided quantity (a sequential map):
 

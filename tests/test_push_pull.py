@@ -112,6 +112,8 @@ def test_shape_panel_click_then_pull_moves_the_slider():
         pp.click(*_pixel(panel.view.plotter, seen))
         assert pp.point is not None and np.linalg.norm(pp.point - seen) < 0.02
         assert not pp.pull.disabled
+        # the browser rounds a slider to min + k step: a typed 0.05 must lie on that grid
+        assert (0.05 - pp.pull.min) / pp.pull.step == pytest.approx(round((0.05 - pp.pull.min) / pp.pull.step))
         # pick the cylinder wall, type a pull of +0.05: the slider r goes to 0.45, the view remeshes
         pp.pick(WALL)
         before = panel.remesh_count

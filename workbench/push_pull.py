@@ -100,14 +100,19 @@ class PushPullControls:
         self.point, self.model = point, self.panel.model
         self.base = dict(self.panel.params)
         self._applied = dict(self.base)
+        from .shape_panel import slider_step  # (the shape panel imports this module)
+
         lo, hi = self.panel._bounds_value
         size = float(np.max(np.subtract(hi, lo)))
+        # +-size/4 on a grid of 1, 2 or 5 x 10^k through 0: a typed 0.05 stays 0.05 in the browser
+        step = slider_step(-size / 4, size / 4, 0.0) / 2
+        half = step * round(size / 4 / step)
         self._quiet = True
         try:
             self.pull.disabled = False
-            self.pull.max, self.pull.min = max(self.pull.max, size / 4), -size / 4
-            self.pull.max = size / 4
-            self.pull.step = size / 800
+            self.pull.max, self.pull.min = max(self.pull.max, half), -half
+            self.pull.max = half
+            self.pull.step = step
             self.pull.value = 0.0
         finally:
             self._quiet = False

@@ -75,6 +75,7 @@ class IntervalUnsupported(TypeError):  # noqa: N818  (the name the callers catch
 # ---------------------------------------------------------------------------------------------
 
 _RULES: dict[Any, Callable] = {}
+_EMPTY: dict[tuple, torch.Tensor] = {}  # (dtype, device, shape) -> a placeholder: the storage of lazy intervals
 _PASS = {  # attributes and queries that do not read values
     "shape", "dtype", "device", "ndim", "dim", "size", "numel", "nelement", "__len__", "is_floating_point",
     "is_complex", "requires_grad", "layout", "is_cuda", "element_size", "is_contiguous", "is_sparse",
@@ -88,7 +89,9 @@ class Interval(torch.Tensor):
 
     Build one with :meth:`Interval.of`; ``.lo`` and ``.hi`` are plain tensors of the interval's
     shape (boolean for comparisons: ``lo`` certainly true, ``hi`` possibly true).  The tensor
-    itself holds ``lo`` (so shape, dtype and device read as usual).
+    itself has the interval's shape, dtype and device (its storage is ``lo``, or a placeholder
+    while the bounds of a possible R-function part are not computed yet); its values are never
+    read but through ``lo`` and ``hi``.
 
     >>> import torch
     >>> x = Interval.of(torch.tensor([-1.0, 2.0]), torch.tensor([1.0, 3.0]))
@@ -97,8 +100,6 @@ class Interval(torch.Tensor):
     (tensor([True, True]), tensor([True, True]))
     """
 
-    lo: torch.Tensor
-    hi: torch.Tensor
     expr: tuple | None
 
     @staticmethod
@@ -107,8 +108,42 @@ class Interval(torch.Tensor):
         if lo.shape != hi.shape:
             lo, hi = torch.broadcast_tensors(lo, hi)
         out = lo.as_subclass(Interval)
-        out.lo, out.hi, out.expr = lo, hi, expr
+        out._lo, out._hi, out._thunk, out.expr = lo, hi, None, expr
+        out._meta = (lo.dtype, lo.device, lo.shape)
         return out
+
+    @staticmethod
+    def _lazy(meta: tuple, thunk: Callable[[], Interval], expr: tuple) -> Interval:
+        """An interval whose bounds are computed when first read: the parts of an R-function
+        (squares, sums, the root), whose own bounds are not needed once it is recognised."""
+        base = _EMPTY.get(meta)
+        if base is None:
+            if len(_EMPTY) > 256:
+                _EMPTY.clear()
+            dtype, device, shape = meta
+            base = _EMPTY.setdefault(meta, torch.empty((), dtype=dtype, device=device).expand(shape))
+        out = base.as_subclass(Interval)
+        out._lo = out._hi = None
+        out._thunk, out.expr, out._meta = thunk, expr, meta
+        return out
+
+    @property
+    def lo(self) -> torch.Tensor:
+        """Lower bounds (a plain tensor of the interval's shape)."""
+        if self._thunk is not None:
+            self._force()
+        return self._lo
+
+    @property
+    def hi(self) -> torch.Tensor:
+        """Upper bounds (a plain tensor of the interval's shape)."""
+        if self._thunk is not None:
+            self._force()
+        return self._hi
+
+    def _force(self) -> None:
+        got = self._thunk()
+        self._lo, self._hi, self._thunk = got.lo, got.hi, None
 
     @classmethod
     def __torch_function__(cls, func: Any, types: Any, args: Sequence = (), kwargs: Any = None) -> Any:
@@ -288,30 +323,39 @@ def _scalar_value(v: Any) -> float | None:
 def _add(a: Any, b: Any, alpha: Any = None) -> Interval:
     if alpha is not None and alpha != 1:
         b = _mul(b, alpha)
-    (al, ah), (bl, bh) = _parts(a), _parts(b)
-    expr = ("add", a, b) if isinstance(a, Interval) and isinstance(b, Interval) else None
-    if expr is None and isinstance(a, Interval) and a.expr and a.expr[0] == "sumsq" and _is_scalar(b):
-        c = _scalar_value(b)
-        if c is not None and c >= 0:
-            expr = ("sumsq", a.expr[1], a.expr[2], _sumsq_constant(a) + c)  # + c >= 0 (safe_sqrt's tiny)
-    elif expr is not None and a.expr and b.expr and a.expr[0] == "sq" and b.expr[0] == "sq":
-        expr = ("sumsq", a.expr[1], b.expr[1])
-    out = _out1(al + bl, ah + bh, expr)
     if isinstance(a, Interval) and isinstance(b, Interval):
         tight = _r_function(a, b, +1)
-        out = out if tight is None else tight
-    return out
+        if tight is not None:
+            return tight
+        expr = ("add", a, b)
+        if a.expr and b.expr and a.expr[0] == "sq" and b.expr[0] == "sq":
+            expr = ("sumsq", a.expr[1], b.expr[1])
+        if a._meta[:2] == b._meta[:2]:  # f1 + f2, f1^2 + f2^2: maybe parts of an R-function
+            shape = a._meta[2] if a._meta[2] == b._meta[2] else torch.broadcast_shapes(a._meta[2], b._meta[2])
+            return Interval._lazy((*a._meta[:2], shape), lambda: _add_now(a, b), expr)
+        return _add_now(a, b, expr)
+    if isinstance(a, Interval) and a.expr and a.expr[0] == "sumsq" and _is_scalar(b):
+        c = _scalar_value(b)
+        if c is not None and c >= 0 and not isinstance(b, torch.Tensor):  # + c >= 0 (safe_sqrt's tiny)
+            expr = ("sumsq", a.expr[1], a.expr[2], _sumsq_constant(a) + c)
+            return Interval._lazy(a._meta, lambda: _add_now(a, b), expr)
+    return _add_now(a, b)
+
+
+def _add_now(a: Any, b: Any, expr: tuple | None = None) -> Interval:
+    (al, ah), (bl, bh) = _parts(a), _parts(b)
+    return _out1(al + bl, ah + bh, expr)
 
 
 def _sub(a: Any, b: Any, alpha: Any = None) -> Interval:
     if alpha is not None and alpha != 1:
         b = _mul(b, alpha)
-    (al, ah), (bl, bh) = _parts(a), _parts(b)
-    out = _out1(al - bh, ah - bl)
     if isinstance(a, Interval) and isinstance(b, Interval):
         tight = _r_function(a, b, -1)
-        out = out if tight is None else tight
-    return out
+        if tight is not None:
+            return tight
+    (al, ah), (bl, bh) = _parts(a), _parts(b)
+    return _out1(al - bh, ah - bl)
 
 
 def _r_function(a: Interval, b: Interval, sign: int) -> Interval | None:
@@ -343,9 +387,13 @@ def _rsub(a: Any, b: Any, alpha: Any = None) -> Interval:
 
 
 def _square(x: Interval) -> Interval:
+    return Interval._lazy(x._meta, lambda: _square_now(x), ("sq", x))
+
+
+def _square_now(x: Interval) -> Interval:
     lo, hi = x.lo, x.hi
     near = torch.clamp(lo, min=0) - torch.clamp(hi, max=0)  # distance from 0 to [lo, hi]
-    return _out1(near * near, torch.maximum(lo * lo, hi * hi), ("sq", x))
+    return _out1(near * near, torch.maximum(lo * lo, hi * hi))
 
 
 def _mul(a: Any, b: Any) -> Interval:
@@ -495,10 +543,14 @@ def _reciprocal(a: Interval) -> Interval:
 
 @_rule("sqrt")
 def _sqrt(a: Interval) -> Interval:
+    if a.expr and a.expr[0] == "sumsq":
+        return Interval._lazy(a._meta, lambda: _sqrt_now(a), ("rho", a.expr[1], a.expr[2], _sumsq_constant(a)))
+    return _sqrt_now(a)
+
+
+def _sqrt_now(a: Interval) -> Interval:
     # sqrt is defined on x >= 0: below, the model gives NaN itself; bound the defined part
-    lo, hi = torch.sqrt(torch.clamp(a.lo, min=0)), torch.sqrt(a.hi)
-    expr = ("rho", a.expr[1], a.expr[2], _sumsq_constant(a)) if a.expr and a.expr[0] == "sumsq" else None
-    return _out1(lo, hi, expr)
+    return _out1(torch.sqrt(torch.clamp(a.lo, min=0)), torch.sqrt(a.hi))
 
 
 def _sumsq_constant(a: Interval) -> float:

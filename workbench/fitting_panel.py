@@ -1,9 +1,15 @@
-"""Fitting panel: recover a model's parameters from a point cloud (paper section 5.4, Figs. 7 and 8).
+"""Fitting panel: recover a model's parameters from a point cloud or a mesh (paper section 5.4, Figs. 7 and 8).
 
-A fit's journey: points -> ``pyfrep_core.fitting.fit`` (on a background thread, Stop
-sets its ``stop`` flag) -> progress events -> live loss chart (log scale, one series per stage)
-and parameter trajectories against the true values -> the cloud coloured by the per-point
-residual |f(x_i; p)| and the fitted surface (``polygonize``) overlaid in the 3-D view.
+A fit's journey: points (generated at hidden parameters, optionally moved to a random pose and
+with outliers added, or loaded from a mesh or point file) -> ``pyfrep_core.fit`` with the pose,
+residual, loss and starts chosen here (on a background thread; Stop sets its ``stop`` flag) ->
+progress events -> live loss chart (log scale, one series per stage) and parameter trajectories
+against the true values -> the cloud coloured by each point's residual (with its colour bar), the
+outliers the robust loss found drawn apart in red, the fitted surface overlaid, and the fitted
+values with their standard errors beside the true ones.
+
+What a new model or a new cloud replaces: the charts, the progress bar, the table and the
+fitted surface of the previous fit are cleared, and the camera frames the new data.
 """
 
 from __future__ import annotations
@@ -17,19 +23,24 @@ from typing import Any
 import ipywidgets as widgets
 import numpy as np
 
-from pyfrep_core import Model, polygonize
+from pyfrep_core import Mesh, Model, polygonize
 
 from ._threads import BackgroundRun, MainThread
 from .charts import LineChart
 from .view import MeshView
 
-__all__ = ["FittingPanel", "fitting_panel", "EFFORT"]
+__all__ = ["FittingPanel", "fitting_panel", "EFFORT", "POSES", "STARTS"]
 
 # fit() settings per effort level: "quick" answers in seconds, "paper" uses the paper's budgets.
 EFFORT: dict[str, dict[str, Any]] = {
     "quick": {"cycles": 300, "population_size": 50, "epochs": 5, "batch_size": 1024, "polish_iters": 20, "every": 1},
     "paper": {"cycles": 10_000, "epochs": 100, "polish_iters": 50, "every": 10},
 }
+ROBUST_POLISH = 100  # a robust loss's polish reweights in rounds: at least this many evaluations
+POSES: dict[str, Any] = {"off": False, "rigid": True, "rigid + scale": "scale"}
+STARTS: tuple[Any, ...] = ("auto", 1, 2, 4, 8, 16)
+MESH_EXTENSIONS = (".stl", ".obj", ".off", ".vtk", ".vtp")
+OUTLIER_COLOUR = "#d62728"
 
 
 def hidden_params(model: Model, seed: int) -> dict[str, float]:
@@ -46,13 +57,46 @@ def hidden_params(model: Model, seed: int) -> dict[str, float]:
     return {k: float(p.lower + (0.2 + 0.6 * rng.random()) * (p.upper - p.lower)) for k, p in model.params.items()}
 
 
+def random_pose(size: float, seed: int) -> tuple[np.ndarray, np.ndarray, dict[str, float]]:
+    """A random rigid motion x -> R x + t: R (3, 3), t (3,) and its pose parameters (tx .. rz).
+
+    The rotation vector has a uniform direction and an angle up to pi; t is up to ``size`` per axis.
+    ``pyfrep_core.pose.posed`` with these parameters moves the solid the same way.
+
+    Examples
+    --------
+    >>> R, t, pose = random_pose(2.0, seed=0)
+    >>> bool(np.allclose(R @ R.T, np.eye(3))), sorted(pose)
+    (True, ['rx', 'ry', 'rz', 'tx', 'ty', 'tz'])
+    """
+    import torch
+
+    from pyfrep_core.pose import rotation_matrix
+
+    rng = np.random.default_rng(seed + 1000)
+    axis = rng.normal(size=3)
+    rotvec = axis / np.linalg.norm(axis) * rng.uniform(0.3, np.pi)
+    shift = rng.uniform(-size, size, 3)
+    R = rotation_matrix(*torch.tensor(rotvec, dtype=torch.float64)).numpy()
+    pose = dict(zip(("tx", "ty", "tz"), map(float, shift))) | dict(zip(("rx", "ry", "rz"), map(float, rotvec)))
+    return R, shift, pose
+
+
+def _box(points: np.ndarray, pad: float = 0.1) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """The points' box grown by ``pad`` of its largest extent on each side."""
+    lo, hi = points.min(0), points.max(0)
+    margin = pad * float(np.max(hi - lo)) or 1.0
+    return tuple((lo - margin).tolist()), tuple((hi + margin).tolist())
+
+
 class FittingPanel(widgets.VBox):
-    """Model and cloud choice, Run/Stop, live charts, residual-coloured cloud and fitted surface.
+    """Model and data choice, fit options, Run/Stop, live charts, residual-coloured cloud and fitted surface.
 
     Parameters
     ----------
     models : name -> Model offered in the chooser (3-D models).
-    n_points, noise, seed : the generated cloud.
+    n_points, noise, seed : the generated cloud (noise: standard deviation in length units).
+    outliers : fraction of uniform outliers added to a generated cloud.
     effort : "quick" or "paper" (see ``EFFORT``).
     backend : 3-D view backend.
     resolution : grid samples per axis for the fitted surface.
@@ -64,6 +108,7 @@ class FittingPanel(widgets.VBox):
         n_points: int = 2000,
         noise: float = 0.0,
         seed: int = 1,
+        outliers: float = 0.0,
         effort: str = "quick",
         backend: str = "auto",
         resolution: int = 64,
@@ -74,14 +119,19 @@ class FittingPanel(widgets.VBox):
         self.models = dict(models)
         self.main = MainThread()
         self.resolution = resolution
-        self.points: np.ndarray | None = None
+        self.points: np.ndarray | None = None  # what is shown (and fitted, for arrays)
+        self.data: Any = None  # what fit() gets: the points, or a loaded Mesh / PointCloud
+        self.data_name = ""
         self.truth: dict[str, float] | None = None
+        self.true_pose: dict[str, float] | None = None
+        self.planted: np.ndarray | None = None  # which generated points are planted outliers
         self.result: Any = None
         self.run: BackgroundRun | None = None
         self.events: list[Any] = []
         self._offsets: dict[str, int] = {}
         self._next_x = 0
         self._first_loss: float | None = None
+        self._generation = 0  # bumped when the data or model changes: a late fit of old data is not drawn
 
         lay = widgets.Layout(width="300px")
         self.model_choice = widgets.Dropdown(options=list(self.models), description="model", layout=lay)
@@ -89,25 +139,46 @@ class FittingPanel(widgets.VBox):
         self.source.style.button_width = "90px"
         self.n_points = widgets.BoundedIntText(value=n_points, min=10, max=1_000_000, description="points", layout=lay)
         self.noise = widgets.BoundedFloatText(
-            value=noise, min=0.0, max=1.0, step=0.005, description="noise", layout=lay
+            value=noise, min=0.0, max=1e6, step=0.005, description="noise", layout=lay
+        )
+        self.outliers = widgets.BoundedFloatText(
+            value=outliers, min=0.0, max=0.5, step=0.01, description="outliers", layout=lay,
+            tooltip="fraction of points added uniformly in the cloud's box",
+        )  # fmt: skip
+        self.moved = widgets.Checkbox(
+            value=False,
+            description="random pose",
+            indent=False,
+            tooltip="move the generated cloud by a random rigid motion",
         )
         self.seed = widgets.IntText(value=seed, description="seed", layout=lay)
-        self.upload = widgets.FileUpload(accept=".xyz,.ply", multiple=False, description="XYZ/PLY")
+        self.upload = widgets.FileUpload(
+            accept=".xyz,.ply,.stl,.obj,.off,.vtk", multiple=False, description="mesh / cloud file"
+        )
+        self.pose = widgets.Dropdown(options=list(POSES), value="off", description="pose", layout=lay)
+        self.residual = widgets.Dropdown(
+            options=["auto", "algebraic", "geometric"], value="auto", description="residual", layout=lay
+        )
+        self.loss = widgets.Dropdown(
+            options=["l2", "huber", "cauchy", "trimmed"], value="l2", description="loss", layout=lay
+        )
+        self.starts = widgets.Dropdown(options=list(STARTS), value="auto", description="starts", layout=lay)
         self.effort = widgets.Dropdown(options=list(EFFORT), value=effort, description="effort", layout=lay)
         self.new_cloud = widgets.Button(description="New cloud")
         self.run_button = widgets.Button(description="Run", button_style="success")
         self.stop_button = widgets.Button(description="Stop", button_style="danger", disabled=True)
         self.bar = widgets.IntProgress(value=0, min=0, max=1, description="", layout=widgets.Layout(width="300px"))
         self.progress_text = widgets.HTML("")
+        self.table = widgets.HTML("")
         self.status = widgets.HTML("")
         schedule = lambda fn: self.main.call(fn, vtk=False)  # noqa: E731
-        self.loss_chart = LineChart("loss E(p) = mean f(x_i; p)^2", "step", "E", logy=True, schedule=schedule)
+        self.loss_chart = LineChart("loss per stage", "step", "loss", logy=True, schedule=schedule)
         self.param_chart = LineChart("parameters (dashed: true values)", "step", "value", schedule=schedule)
         self.view = MeshView(backend=backend, size=size)
 
         # these render: on the main thread (JupyterLab may call back on a subshell thread)
         self.new_cloud.on_click(lambda _: self.main.call(self.make_cloud))
-        self.model_choice.observe(lambda _: self.main.call(self.make_cloud), names="value")
+        self.model_choice.observe(lambda _: self.main.call(self._model_changed), names="value")
         self.upload.observe(lambda _: self.main.call(self._uploaded), names="value")
         self.run_button.on_click(lambda _: self.start())
         self.stop_button.on_click(lambda _: self.stop())
@@ -118,8 +189,15 @@ class FittingPanel(widgets.VBox):
                 self.source,
                 self.n_points,
                 self.noise,
+                self.outliers,
+                widgets.HBox([self.moved]),
                 self.seed,
                 widgets.HBox([self.new_cloud, self.upload]),
+                widgets.HTML("<b>fit</b>"),
+                self.pose,
+                self.residual,
+                self.loss,
+                self.starts,
                 self.effort,
                 widgets.HBox([self.run_button, self.stop_button]),
                 self.bar,
@@ -128,49 +206,98 @@ class FittingPanel(widgets.VBox):
             layout=widgets.Layout(width="320px"),
         )
         charts = widgets.VBox([self.loss_chart.widget, self.param_chart.widget])
-        super().__init__([widgets.HBox([controls, self.view.widget, charts]), self.status])
+        super().__init__([widgets.HBox([controls, self.view.box, charts]), self.status, self.table])
         self.make_cloud()
 
     @property
     def model(self) -> Model:
         return self.models[self.model_choice.value]
 
-    # -- the cloud --------------------------------------------------------------------------
+    # -- the data ---------------------------------------------------------------------------
+    def _model_changed(self) -> None:
+        """A new model: a new generated cloud of it, or the loaded file kept for the new model."""
+        if self.source.value == "file" and self.points is not None:
+            self._reset()
+            self.truth = None
+            self._show_cloud()
+            self.status.value = f"model {html.escape(self.model.__name__)}; data {html.escape(self.data_name)}"
+        else:
+            self.make_cloud()
+
     def make_cloud(self) -> None:
-        """Sample the chosen model at hidden parameter values (plus noise) and show the cloud."""
+        """Sample the chosen model at hidden parameter values (plus noise, pose and outliers) and show the cloud."""
         from pyfrep_core.sampling import sample_surface
 
-        self.truth = hidden_params(self.model, int(self.seed.value))
+        seed = int(self.seed.value)
+        truth = hidden_params(self.model, seed)
         try:
-            self.points = sample_surface(
-                self.model,
-                int(self.n_points.value),
-                params=self.truth,
-                noise=float(self.noise.value),
-                seed=int(self.seed.value),
+            pts = sample_surface(
+                self.model, int(self.n_points.value), params=truth, noise=float(self.noise.value), seed=seed,
                 resolution=64,
-            )
+            )  # fmt: skip
         except Exception as err:
             self._error(err)
             return
+        self.true_pose = None
+        if self.moved.value:
+            lo, hi = np.asarray(self.model.bounds[0]), np.asarray(self.model.bounds[1])
+            R, t, self.true_pose = random_pose(float(np.max(hi - lo)), seed)
+            pts = pts @ R.T + t
+        n_out = int(round(float(self.outliers.value) * len(pts)))
+        planted = np.zeros(len(pts) + n_out, bool)
+        if n_out:
+            lo, hi = _box(pts, 0.05)
+            stray = np.random.default_rng(seed + 1).uniform(lo, hi, (n_out, 3))
+            pts = np.vstack([pts, stray])
+            planted[-n_out:] = True
+        self._reset()
+        self.points, self.data, self.truth, self.planted = pts, pts, truth, planted
+        self.data_name = "generated cloud"
         self.source.value = "generated"
         self._show_cloud()
-        self.status.value = f"{len(self.points)} points sampled at hidden parameters (noise {self.noise.value:g})"
+        moved = ", moved to a random pose" if self.true_pose else ""
+        stray = f", {n_out} outliers" if n_out else ""
+        self.status.value = f"{len(pts)} points sampled at hidden parameters (noise {self.noise.value:g}{moved}{stray})"
 
-    def load_cloud(self, path: str) -> None:
-        """Use the points of an XYZ or PLY file (``pyfrep_core.io.load_points``); true values unknown."""
-        from pyfrep_core.io import load_points
+    def load_cloud(self, path: str, name: str | None = None) -> None:
+        """Use a mesh file (.stl .obj .off .vtk, or a .ply with faces) or a point file (.xyz, .ply).
 
+        A mesh is fitted on its vertices and points drawn by area (``fit`` does it); a cloud on its
+        points.  True values are unknown.  ``name``: what the status calls the file (an upload's own
+        name, not the temporary file holding it).
+        """
+        from pyfrep_core.io import load_mesh, load_points
+        from pyfrep_core.sampling import sample_mesh
+
+        name = name or os.path.basename(path)
+        ext = os.path.splitext(path)[1].lower()
         try:
-            cloud = load_points(path)
-            self.points = np.asarray(getattr(cloud, "points", cloud), dtype=np.float64)
+            data: Any = None
+            if ext in MESH_EXTENSIONS or ext == ".ply":
+                try:
+                    data = load_mesh(path)
+                except ValueError:
+                    if ext != ".ply":
+                        raise
+                if data is not None and len(data.faces) == 0:
+                    data = None  # a .ply of points only
+            if isinstance(data, Mesh):
+                rng = np.random.default_rng(int(self.seed.value))
+                points = np.vstack([data.vertices, sample_mesh(data, int(self.n_points.value), rng)])
+                what = f"mesh {html.escape(name)}: {data.n_vertices} vertices, {len(data.faces)} triangles"
+            else:
+                data = load_points(path)
+                points = np.asarray(getattr(data, "points", data), dtype=np.float64)
+                what = f"{len(points)} points loaded from {html.escape(name)}"
         except Exception as err:
             self._error(err)
             return
-        self.truth = None
+        self._reset()
+        self.points, self.data, self.data_name = points, data, name
+        self.truth, self.true_pose, self.planted = None, None, None
         self.source.value = "file"
         self._show_cloud()
-        self.status.value = f"{len(self.points)} points loaded from {html.escape(os.path.basename(path))}"
+        self.status.value = what
 
     def _uploaded(self) -> None:
         files = self.upload.value
@@ -178,19 +305,54 @@ class FittingPanel(widgets.VBox):
             return
         item = files[0]
         suffix = os.path.splitext(item["name"])[1] or ".xyz"
-        with tempfile.NamedTemporaryFile(suffix=suffix, delete=False) as fh:
-            fh.write(bytes(item["content"]))
-        try:
-            self.load_cloud(fh.name)
-        finally:
-            os.unlink(fh.name)
+        with tempfile.TemporaryDirectory() as tmp:
+            path = os.path.join(tmp, "upload" + suffix)
+            with open(path, "wb") as fh:
+                fh.write(bytes(item["content"]))
+            self.load_cloud(path, name=item["name"])
+
+    def _reset(self) -> None:
+        """Forget the previous fit: charts, progress bar, table, fitted surface, outliers."""
+        self._generation += 1
+        if self.run is not None and self.run.running:
+            self.run.stop.set()  # its result belongs to the old data: not drawn (see _finished)
+            self.run_button.disabled, self.stop_button.disabled = False, True
+        self.result = None
+        self.events = []
+        self._offsets, self._next_x, self._first_loss = {}, 0, None
+        self.loss_chart.clear()
+        self.param_chart.clear()
+        self.loss_chart.refresh(force=True)
+        self.param_chart.refresh(force=True)
+        self.bar.value, self.bar.max, self.bar.description, self.bar.bar_style = 0, 1, "", ""
+        self.progress_text.value = ""
+        self.table.value = ""
+        self.view.hide_surface()
+        self.view.overlay_points(None, name="outliers")
 
     def _show_cloud(self) -> None:
-        self.view.set_opacity(0.0)
+        """The data alone (the stale surface hidden), the camera framing it."""
+        self.view.hide_surface()
+        self.view.overlay_points(None, name="outliers")
         self.view.overlay_points(self.points)
         self.view.render(reset_camera=True)
 
     # -- running ------------------------------------------------------------------------------
+    def settings(self, **overrides: Any) -> dict[str, Any]:
+        """The keyword arguments of ``fit`` for the chosen options (``overrides`` last)."""
+        starts = self.starts.value
+        cfg = {
+            **EFFORT[self.effort.value],
+            "pose": POSES[self.pose.value],
+            "residual": self.residual.value,
+            "loss": self.loss.value,
+            "starts": None if starts == "auto" else int(starts),
+            "seed": int(self.seed.value),
+        }
+        if cfg["loss"] != "l2" and "polish_iters" in cfg:
+            cfg["polish_iters"] = max(cfg["polish_iters"], ROBUST_POLISH)
+        return {**cfg, **overrides}
+
     def start(self, **overrides: Any) -> BackgroundRun | None:
         """Run the fit on a background thread; returns the run (``.wait()`` blocks until done)."""
         if self.run is not None and self.run.running:
@@ -198,21 +360,31 @@ class FittingPanel(widgets.VBox):
         if self.points is None:
             self.status.value = "<span style='color:#b00'>no points to fit</span>"
             return None
-        from pyfrep_core.fitting import fit
+        from pyfrep_core.fitting import fit, fit_error
 
-        model, points = self.model, self.points
-        settings = {**EFFORT[self.effort.value], "seed": int(self.seed.value), **overrides}
-        self._reset_charts()
+        model, data, points = self.model, self.data, self.points
+        settings = self.settings(**overrides)
+        generation = self._generation
+        self._clear_fit()
+        if self.truth is not None:
+            references = dict(self.truth)
+            if settings["pose"] and self.true_pose:
+                references.update(self.true_pose)
+            for k, v in references.items():
+                self.param_chart.set_reference(k, v)
         self.run_button.disabled, self.stop_button.disabled = True, False
-        self.status.value = f"fitting {model.__name__} to {len(points)} points..."
+        self.status.value = f"fitting {html.escape(model.__name__)} to {html.escape(self.data_name)}..."
         self._t0 = time.perf_counter()
 
         def target(stop: Any) -> Any:
-            result = fit(model, points, callback=self._event, stop=stop, progress=False, **settings)
-            surface = polygonize(lambda x: model(x, **result.params), model.bounds, self.resolution)
-            return result, surface
+            result = fit(model, data, callback=self._event, stop=stop, progress=False, **settings)
+            fitted = result.model if result.model is not None else model
+            shown = result.points if result.points is not None else points
+            distance = fit_error(fitted, shown, result.params, residual=result.residual)
+            surface = polygonize(lambda x: fitted(x, **result.params), _box(shown), self.resolution, progress=False)
+            return result, surface, shown, distance
 
-        self.run = BackgroundRun(target, self._finished, self.main).start()
+        self.run = BackgroundRun(target, lambda out, err: self._finished(out, err, generation), self.main).start()
         return self.run
 
     def stop(self) -> None:
@@ -221,14 +393,14 @@ class FittingPanel(widgets.VBox):
             self.run.stop.set()
             self.status.value = "stopping..."
 
-    def _reset_charts(self) -> None:
+    def _clear_fit(self) -> None:
         self.events = []
         self._offsets, self._next_x, self._first_loss = {}, 0, None
         self.loss_chart.clear()
         self.param_chart.clear()
-        if self.truth is not None:
-            for k, v in self.truth.items():
-                self.param_chart.set_reference(k, v)
+        self.bar.value, self.bar.max, self.bar.description, self.bar.bar_style = 0, 1, "", ""
+        self.progress_text.value = ""
+        self.table.value = ""
 
     def _event(self, event: Any) -> None:
         """Progress callback (worker thread): chart points, progress text, bar."""
@@ -241,13 +413,16 @@ class FittingPanel(widgets.VBox):
             self.loss_chart.add(event.stage, x, max(event.loss, 1e-300))
             if self._first_loss is None:
                 self._first_loss = event.loss
-        for k, v in (event.params or {}).items():
+        params = event.params() if callable(event.params) else event.params
+        for k, v in (params or {}).items():
             self.param_chart.add(k, x, v)
         self.loss_chart.refresh()
         self.param_chart.refresh()
         self.main.call(self._progress_text, event, vtk=False)
 
     def _progress_text(self, event: Any) -> None:
+        if self.run is None or not self.run.running:
+            return  # a late event after the end: the bar already says done
         self.bar.max = max(1, event.total)
         self.bar.value = min(event.step + 1, event.total)
         self.bar.description = event.stage
@@ -257,37 +432,82 @@ class FittingPanel(widgets.VBox):
             f"loss {event.loss:.3e}{first} &middot; {self.loss_chart.n_points} points charted</span>"
         )
 
-    def _finished(self, output: Any, error: BaseException | None) -> None:
-        """On the main thread: final charts, coloured cloud, fitted surface, summary."""
+    def _finished(self, output: Any, error: BaseException | None, generation: int) -> None:
+        """On the main thread: final charts, coloured cloud, outliers, fitted surface, table, summary."""
         self.run_button.disabled, self.stop_button.disabled = False, True
+        if generation != self._generation:
+            return  # the data or the model changed while it ran: its result is not about what is shown
         self.loss_chart.refresh(force=True)
         self.param_chart.refresh(force=True)
+        self.bar.max = max(self.bar.max, 1)
+        self.bar.value = self.bar.max  # the run is over, whatever step the last event was
         if error is not None:
+            self.bar.description, self.bar.bar_style = "error", "danger"
             self._error(error)
             return
-        result, surface = output
+        result, surface, shown, distance = output
         self.result = result
-        self.view.overlay_points(self.points, scalars=result.residuals, title="|f| residual")
-        if not surface.is_empty():
-            self.view.update(surface)
+        self.bar.description = "stopped" if result.stopped else "done"
+        self.bar.bar_style = "warning" if result.stopped else "success"
+        inliers = result.inliers if result.inliers is not None and len(result.inliers) == len(shown) else None
+        if inliers is None:
+            inliers = np.ones(len(shown), bool)
+        unit = f" ({result.units})" if result.units else ""
+        what = "distance |f| / |grad f|" if result.residual == "geometric" else "residual |f|"
+        kept = distance[inliers]
+        top = float(np.percentile(kept, 99)) if len(kept) else 1.0
+        if surface.is_empty():
+            self.view.hide_surface()
+        else:
+            self.view.update(surface, reset_camera=True)  # plain grey: the cloud's colours own the bar
             self.view.set_opacity(0.45)
-        self.view.render()
-        rows = "".join(
-            f"<tr><td>{html.escape(k)}</td><td>{v:.6g}</td>"
-            + (f"<td>{self.truth[k]:.6g}</td><td>{abs(v - self.truth[k]):.2e}</td>" if self.truth else "")
-            + "</tr>"
-            for k, v in result.params.items()
-        )
-        head = "<tr><th>param</th><th>fitted</th>" + ("<th>true</th><th>|error|</th>" if self.truth else "") + "</tr>"
+        self.view.overlay_points(shown[inliers], distance[inliers], f"{what}{unit}", clim=(0.0, top), bar=True)
+        n_out = int((~inliers).sum())
+        self.view.overlay_points(shown[~inliers] if n_out else None, name="outliers", color=OUTLIER_COLOUR)
+        self.view.render(reset_camera=surface.is_empty())
+        self.table.value = self._table(result)
         stopped = " <b>(stopped early)</b>" if result.stopped else ""
-        res = result.residuals
+        found = ""
+        if self.planted is not None and len(self.planted) == len(shown) and self.planted.any():
+            hit = int((~inliers & self.planted).sum())
+            found = f" ({hit} of the {int(self.planted.sum())} planted)"
+        reason = (
+            f"<br><small>standard errors: {html.escape(result.std_error_reason)}</small>"
+            if result.std_error_reason
+            else ""
+        )
         self.status.value = (
             f"<span class='fit-done'>fit done in {time.perf_counter() - self._t0:.1f} s{stopped}: "
-            f"loss {result.loss:.3e}, stages {', '.join(result.stages)}; residual max "
-            f"{float(np.max(res)):.2e}</span><br><small>cloud coloured by the residual |f(x_i; p)| "
-            f"(viridis, {float(np.min(res)):.2e} dark to {float(np.max(res)):.2e} yellow); "
-            f"fitted surface translucent</small><table>{head}{rows}</table>"
+            f"{html.escape(result.residual)} residual, {html.escape(result.loss_function)} loss, "
+            f"{len(result.starts)} start(s); RMS {result.rms:.3g}{unit}, max {result.max_distance:.3g}{unit}; "
+            f"{n_out} outliers{found} drawn in red</span><br><small>cloud coloured by the {what}{unit} of the "
+            f"inliers (viridis, 0 dark to {top:.2g} yellow, 99th percentile); fitted surface translucent; "
+            f"polish: {html.escape(result.termination)}</small>{reason}"
         )
+
+    def _table(self, result: Any) -> str:
+        """Fitted values with standard errors, against the true ones where known."""
+        truth = dict(self.truth or {})
+        if self.true_pose and self.pose.value != "off":
+            truth.update(self.true_pose)
+        known = bool(truth)
+        head = "<tr><th>param</th><th>fitted</th><th>&plusmn; s.e.</th>" + (
+            "<th>true</th><th>|error|</th><th>error / s.e.</th>" if known else ""
+        ) + "</tr>"  # fmt: skip
+        rows = []
+        for k, v in result.params.items():
+            se = result.std_errors.get(k)
+            se_text = f"{se:.2g}" if se is not None and np.isfinite(se) else "&mdash;"
+            row = f"<tr><td>{html.escape(k)}</td><td>{v:.6g}</td><td>{se_text}</td>"
+            if known:
+                if k in truth:
+                    err = abs(v - truth[k])
+                    z = f"{err / se:.2f}" if se else "&mdash;"
+                    row += f"<td>{truth[k]:.6g}</td><td>{err:.2e}</td><td>{z}</td>"
+                else:
+                    row += "<td></td><td></td><td></td>"
+            rows.append(row + "</tr>")
+        return f"<table class='fit-table'>{head}{''.join(rows)}</table>"
 
     def _error(self, err: BaseException) -> None:
         self.status.value = (
@@ -302,9 +522,12 @@ class FittingPanel(widgets.VBox):
 
 
 def fitting_panel(backend: str = "auto", models: dict[str, Model] | None = None, **kwargs: Any) -> FittingPanel:
-    """The fitting panel with the paper's 3-D shapes (Fig. 1 part first; microstructure for Figs. 7, 8)."""
+    """The fitting panel with the paper's 3-D shapes (Fig. 1 part first; microstructure for Figs. 7, 8)
+    and the machined test parts of ``pyfrep_core.models.cad_parts`` (millimetres)."""
     if models is None:
+        from pyfrep_core.models.cad_parts import PARTS
+
         from .app import paper_models
 
-        models = paper_models(dim=3)
+        models = {**paper_models(dim=3), **PARTS}
     return FittingPanel(models, backend=backend, **kwargs)

@@ -306,17 +306,35 @@ def _solve_qef(
     point lies outside the cell, the line's point nearest to it inside the cell is taken (the
     crease only clips the cell), and only where the line misses the cell is the point clamped.
     """
-    w, u = np.linalg.eigh(ata)
-    top = w[:, -1:]
-    keep = w > SINGULAR_CUTOFF * top
-    inv = np.where(keep, 1.0 / np.where(keep, w, 1.0), 0.0)
     rhs = atb - np.einsum("vij,vj->vi", ata, mass)
-    coef = np.einsum("vji,vj->vi", u, rhs) * inv
-    x = mass + np.einsum("vij,vj->vi", u, coef)
-    rank = keep.sum(axis=1)
-    out = np.flatnonzero((rank == 2) & ((x < cell_lo) | (x > cell_hi)).any(axis=1))
+    x = mass.copy()
+    rank = np.ones(len(x), dtype=np.int64)
+    # smooth patches first, without an eigendecomposition: power iteration from the largest column
+    # gives the top eigenpair; its Rayleigh quotient q <= l1, so trace - q >= l2 + l3 bounds l2
+    column = np.einsum("vii->vi", ata).argmax(axis=1)
+    v = ata[np.arange(len(x)), :, column]
+    for _ in range(4):
+        v = np.einsum("vij,vj->vi", ata, v)
+        v /= np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-300)
+    q = np.einsum("vi,vij,vj->v", v, ata, v)
+    trace = np.einsum("vii->v", ata)
+    flat = (trace - q <= SINGULAR_CUTOFF * q) & (q > 0)
+    x[flat] += v[flat] * (np.einsum("vi,vi->v", v[flat], rhs[flat]) / q[flat])[:, None]
+    rest = np.flatnonzero(~flat)
+    if len(rest):
+        w, u = np.linalg.eigh(ata[rest])
+        keep = w > SINGULAR_CUTOFF * w[:, -1:]
+        inv = np.where(keep, 1.0 / np.where(keep, w, 1.0), 0.0)
+        coef = np.einsum("vji,vj->vi", u, rhs[rest]) * inv
+        x[rest] += np.einsum("vij,vj->vi", u, coef)
+        rank[rest] = keep.sum(axis=1)
+    else:
+        u = np.zeros((0, 3, 3))
+    crease = np.flatnonzero(rank[rest] == 2)
+    outside = ((x[rest[crease]] < cell_lo[rest[crease]]) | (x[rest[crease]] > cell_hi[rest[crease]])).any(axis=1)
+    out = rest[crease[outside]]
     if len(out):  # slide along the crease (the eigenvector of the dropped eigenvalue) into the cell
-        line = u[out, :, 0]
+        line = u[crease[outside], :, 0]
         start = x[out]
         with np.errstate(divide="ignore", invalid="ignore"):
             t1 = (cell_lo[out] - start) / line

@@ -37,11 +37,14 @@ test: setup browser lint
 
 # The workbench in a browser: Voila serves notebooks/workbench.ipynb; idle kernels are culled.
 # Template "pyfrep" (workbench/jupyter): Voila's lab page without its CDN stylesheets (offline).
+# A pre-heated kernel has run the notebook (imports, first mesh, the model's compiled kernels)
+# before the page is asked for; the next one is started a minute later, not while the page is new.
 run: setup
 	@echo "workbench: http://localhost:$(PORT)/"
 	JUPYTER_PATH=$(CURDIR)/workbench/jupyter $(VENV)/bin/voila notebooks/workbench.ipynb --no-browser \
 		--port=$(PORT) --template=pyfrep \
-		--MappingKernelManager.cull_idle_timeout=120 --MappingKernelManager.cull_interval=30
+		--MappingKernelManager.cull_idle_timeout=120 --MappingKernelManager.cull_interval=30 \
+		--preheat_kernel=True --VoilaConfiguration.default_pool_size=1 --VoilaKernelManager.fill_delay=60
 
 bench: setup
 	for b in benchmarks/*.py; do $(PY) $$b; done

@@ -93,7 +93,9 @@ def start_voila(port: int, preheat: bool, log: Path) -> subprocess.Popen:
         "--MappingKernelManager.cull_interval=30",
     ]
     if preheat:
+        # as make run: the notebook already run in a pooled kernel; its successor started a minute later
         args += ["--preheat_kernel=True", "--VoilaConfiguration.default_pool_size=1"]
+        args += ["--VoilaKernelManager.fill_delay=60"]
     env = {**os.environ, "JUPYTER_PATH": str(ROOT / "workbench" / "jupyter")}
     env.pop("PYFREP_QUICK", None)  # the app as a user gets it
     out = open(log, "w")  # noqa: SIM115  (the child writes to it until it ends)
@@ -229,6 +231,8 @@ def measure(preheat: bool, presses: int, shots: Path | None) -> dict[str, float]
             browser.close()
         return {
             "usable": usable,
+            "slider": slider_at - t_nav,
+            "drawn": drawn_at - t_nav,
             "first": statistics.median(first),
             "full": statistics.median(full),
             "remesh": statistics.median(kernel),
@@ -245,6 +249,7 @@ def report(name: str, r: dict[str, float]) -> None:
 
     print(f"{name}:")
     print(f"  page usable                {r['usable']:8.0f} ms  ({mark('usable')})")
+    print(f"    slider on the page       {r['slider']:8.0f} ms, shape drawn in the 3-D view {r['drawn']:.0f} ms")
     print(f"  key -> first new pixels    {r['first']:8.0f} ms  median of {r['presses']} ({mark('first')})")
     print(f"  key -> full-res frame      {r['full']:8.0f} ms  ({mark('full')})")
     print(f"  kernel remesh (status)     {r['remesh']:8.0f} ms  (full-resolution mesh)")

@@ -168,7 +168,7 @@ class ShapePanel(widgets.VBox):
         bounds: Any = None,
         backend: str = "auto",
         threaded: bool | None = None,
-        settle: float = 0.35,
+        settle: float = 0.1,  # a key press: preview, then the full mesh ~0.1 s later
         colouring: str = "sensitivity",
         size: tuple[int, int] = (640, 480),
         export_dir: str | None = None,
@@ -249,8 +249,8 @@ class ShapePanel(widgets.VBox):
         self.reset_button.on_click(lambda _: self.reset())
 
         self.legend = widgets.HTML(
-            "<small>colour = normal velocity v = -(&part;f/&part;p)/|&nabla;f| of the last parameter moved: "
-            "red moves into the solid, blue outward (units per unit of p)</small>",
+            "<span style='font-size:13px'>colour = normal velocity v = -(&part;f/&part;p)/|&nabla;f| of the "
+            "last parameter moved: red moves into the solid, blue outward (units per unit of p)</span>",
             layout=widgets.Layout(width="420px", display="" if colouring == "sensitivity" else "none"),
         )
         controls = widgets.VBox(
@@ -288,6 +288,7 @@ class ShapePanel(widgets.VBox):
         self._make_sliders(model)
         self._bounds_value = check_bounds(bounds if bounds is not None else model.bounds, 3)
         self.view.set_section(on=shows_inside(model))  # a lattice opens, a solid closes
+        self.download.value = ""  # the last export was of the other model
         self._quiet = True
         try:
             self.bounds.value = _format_bounds(self._bounds_value)

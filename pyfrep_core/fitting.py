@@ -49,7 +49,17 @@ from .evaluate import call_sets, evaluate
 from .model import Model
 from .pose import initial_pose, is_posed, posed
 from .progress import Event, Progress, StopFlag
-from .residuals import LOSSES, RESIDUALS, geometric, inliers, objective, robust_scale, value_and_gradnorm, weights
+from .residuals import (
+    LOSSES,
+    RESIDUALS,
+    geometric,
+    inliers,
+    objective,
+    robust_scale,
+    slopes,
+    value_and_gradnorm,
+    weights,
+)
 
 __all__ = ["FitResult", "IdentifiabilityWarning", "fit", "fit_error"]
 
@@ -58,6 +68,21 @@ IRLS_ROUNDS = 12  # reweighting rounds of a robust polish at most (the weights s
 IRLS_TOL = 1e-7  # rounds stop when no parameter moves more than this fraction of its range
 RANK_RTOL = 1e-9  # singular values of the column-scaled Jacobian below this fraction of the largest are 0
 POSE_SPREAD = 0.02  # std of a pose population around its start, in the unit box
+POSE_STEP = 0.1  # a pose mutation's size relative to a shape mutation's
+SHAPE_SPREAD = 0.1  # std of a pose population's shape around the declared defaults, in the unit box
+PROBES = 2  # plateau probes (and re-polishes) after a robust polish at most
+PROBE_VALUES = 24  # values of each dimension a probe tries across its range
+PROBE_GAIN = 0.005  # a probe's move must lower the loss by this fraction (the re-polish must confirm it)
+AUTO_STARTS = 8  # starts=None keeps at most this many pose candidates (those fitting the points best)
+# defaults of the settings left None: the paper's protocol, and a local multi-start one for posed parts
+PAPER_PROTOCOL = {"stages": STAGES, "cycles": 10_000, "population_size": 100, "children": 50, "final_subsample": 8192}
+POSED_PROTOCOL = {
+    "stages": ("evolution", "polish"),
+    "cycles": 600,
+    "population_size": 30,
+    "children": 30,
+    "final_subsample": 2000,
+}
 
 
 class IdentifiabilityWarning(RuntimeWarning):
@@ -310,13 +335,20 @@ def _evolution(prob: _Problem, x: torch.Tensor, gen: torch.Generator, cfg: dict,
         return torch.nan_to_num(e, nan=math.inf)
 
     pop = torch.rand(n_pop, pop_size, n_free, generator=gen, dtype=dt).to(dev)
+    pose_mask = None
+    if cfg.get("pose_dims"):
+        pose_mask = torch.zeros(n_free, dtype=dt, device=dev)
+        pose_mask[cfg["pose_dims"]] = 1.0
     if starts is not None:
-        pose_dims = cfg.get("pose_dims") or []
-        if pose_dims:  # a pose far from its start is noise: the members spread around it there
-            near = starts[:, None, pose_dims] + POSE_SPREAD * torch.randn(
-                n_pop, pop_size, len(pose_dims), generator=gen, dtype=dt
-            )
-            pop[:, :, pose_dims] = near.clamp(0.0, 1.0).to(dev)
+        if pose_mask is not None:
+            # a local search around each start: its pose candidate and the nominal (default) shape.  A
+            # shape drawn anywhere in its range is no help here: a part drawn too large explains the
+            # points inside it by its nearest wall, a minimum no local step leaves
+            spread = POSE_SPREAD * pose_mask + SHAPE_SPREAD * (1.0 - pose_mask)
+            near = starts[:, None, :].to(dev) + spread * torch.randn(
+                n_pop, pop_size, n_free, generator=gen, dtype=dt
+            ).to(dev)
+            pop = near.clamp(0.0, 1.0)
         pop[:, 0] = starts.to(dev)
     scores = score(pop)
     hist_u, hist_s = [pop], [scores]
@@ -340,6 +372,17 @@ def _evolution(prob: _Problem, x: torch.Tensor, gen: torch.Generator, cfg: dict,
             # mutation: Gaussian step in the unit box, its scale log-uniform per child (coarse and fine moves)
             sigma = torch.exp(lo_s + (hi_s - lo_s) * torch.rand(n_pop, b, 1, generator=gen, dtype=dt)).to(dev)
             step = sigma * torch.randn(n_pop, b, n_free, generator=gen, dtype=dt).to(dev)
+            if pose_mask is not None:
+                # a child moves its pose or one dimension of its shape: a part fitted but for one
+                # dimension (a tube too long: its end's points explained by its walls) needs a large
+                # step of that one alone; the pose, near its start already, moves by POSE_STEP of a step
+                moves_pose = torch.rand(n_pop, b, 1, generator=gen, dtype=dt).to(dev) < 0.5
+                shape_dims = torch.nonzero(pose_mask == 0).flatten()
+                one = torch.zeros(n_pop, b, n_free, dtype=dt, device=dev)
+                if len(shape_dims):
+                    pick = shape_dims[torch.randint(len(shape_dims), (n_pop, b), generator=gen).to(dev)]
+                    one.scatter_(2, pick[..., None], 1.0)
+                step = step * torch.where(moves_pose, POSE_STEP * pose_mask, one)
             children = (pop.gather(1, parents[..., None].expand(n_pop, b, n_free)) + step).clamp(0.0, 1.0)
             child_scores = score(children)
             slots = (oldest + torch.arange(b, device=dev)) % pop_size  # each child replaces the oldest
@@ -527,13 +570,19 @@ def _polish(prob: _Problem, x: torch.Tensor, u0: torch.Tensor, cfg: dict, report
             stopped = True
             p = last["p"]
             message = "stopped by the callback or the stop flag"
-        if jmat is None:
-            jmat = jac(p)
-            rvec = raw(p)[0] if sw[0] is None else sw[0] * raw(p)[0]
+        bread = None
+        if jmat is None:  # a robust loss: the M-estimator's sandwich at the final weights
+            jmat, rvec = raw_jac(p), raw(p)[0]
+            rt = torch.from_numpy(rvec)
+            s = float(robust_scale(rt)) if prob.loss_scale is None else prob.loss_scale
+            w = weights(rt, prob.loss, s).numpy()
+            bread = slopes(rt, prob.loss, s).numpy()
+            jmat, rvec = np.sqrt(w)[:, None] * jmat, np.sqrt(w) * rvec  # meat: (w r)^2 = (rho'/2)^2
+            bread = bread / np.where(w > 0, w, 1.0)  # on the weighted rows
     if robust and not stopped:
         state = "the weights settled" if settled else "the weights were still changing"
         message = f"{message} (reweighted least squares: {rounds} round{'s' * (rounds != 1)}, {state})"
-    cov, null, zero_cols = _covariance(np.asarray(jmat), np.asarray(rvec))
+    cov, null, zero_cols = _covariance(np.asarray(jmat), np.asarray(rvec), bread)
     return {
         "p": p,
         "stopped": stopped,
@@ -546,11 +595,49 @@ def _polish(prob: _Problem, x: torch.Tensor, u0: torch.Tensor, cfg: dict, report
     }
 
 
-def _covariance(j: np.ndarray, r: np.ndarray) -> tuple[np.ndarray | None, list[int], list[int]]:
+def _loss_at(prob: _Problem, x: torch.Tensor, p: np.ndarray, scale: float | None) -> float:
+    """The loss of all the points at ``p`` for a given noise scale (so that two fits compare)."""
+    with torch.no_grad():
+        r = prob.f(x.to(torch.float64), torch.as_tensor(p, dtype=torch.float64, device=x.device))
+    return float(objective(r, prob.loss, scale))
+
+
+def _probe(prob: _Problem, x: torch.Tensor, p: np.ndarray, scale: float | None, cfg: dict) -> np.ndarray | None:
+    """Each shape dimension alone across its range (``PROBE_VALUES`` values, all in one batched
+    call), the rest held at ``p``, scored with the robust loss at the fitted noise scale: the first
+    move that lowers the loss by more than ``PROBE_GAIN``, or None.
+
+    A robust fit has plateaus a local method cannot leave: a dimension whose surface has lost its
+    points to the outliers (a chamfer drawn past the corner it cuts, a tube drawn too long, whose
+    end's points its walls then explain) changes no inlier's residual, so its gradient is 0.
+    """
+    shape = [j for j, k in enumerate(prob.free) if k not in getattr(prob.model, "pose_names", ())]
+    if not shape or scale is None:
+        return None
+    grid = np.linspace(0.0, 1.0, PROBE_VALUES)
+    sets = np.repeat(p[None, :], len(shape) * PROBE_VALUES + 1, axis=0)
+    for i, j in enumerate(shape):
+        sets[1 + i * PROBE_VALUES : 1 + (i + 1) * PROBE_VALUES, j] = prob.lower[j] + grid * (
+            prob.upper[j] - prob.lower[j]
+        )
+    m = min(cfg["final_subsample"], x.shape[0])
+    xs = x[torch.randperm(x.shape[0], generator=torch.Generator().manual_seed(0))[:m].to(x.device)]
+    with torch.no_grad():
+        r = prob.f(xs, torch.as_tensor(sets, dtype=x.dtype, device=x.device))
+        scores = torch.nan_to_num(objective(r, prob.loss, scale).to(torch.float64).cpu(), nan=math.inf).numpy()
+    best = int(np.argmin(scores))
+    return sets[best] if scores[best] < (1.0 - PROBE_GAIN) * scores[0] else None
+
+
+def _covariance(
+    j: np.ndarray, r: np.ndarray, bread: np.ndarray | None = None
+) -> tuple[np.ndarray | None, list[int], list[int]]:
     """Covariance of a least-squares estimate, robust to per-point noise levels (White's HC0),
     ``(J^T J)^-1 J^T diag(r^2) J (J^T J)^-1``, and the parameters the data cannot determine.
 
-    With weighted rows ``sqrt(w) J`` and ``sqrt(w) r`` it is the M-estimator's sandwich.  The
+    With weighted rows ``sqrt(w) J`` and ``sqrt(w) r`` and ``bread`` the ratio of each point's
+    loss curvature to its weight (``rho''/(2 w)``), it is the M-estimator's sandwich
+    ``B^-1 (sum psi^2 J J^T) B^-1`` with ``B = J^T diag(rho''/2) J``.  The
     columns are scaled to unit length first (so that the parameters' units do not matter), then
     J = U S V^T: singular values below ``RANK_RTOL`` times the largest span directions along which
     the residuals do not change; a parameter with a component above 0.05 in them is unidentifiable
@@ -572,9 +659,16 @@ def _covariance(j: np.ndarray, r: np.ndarray) -> tuple[np.ndarray | None, list[i
     if not keep.any():
         return None, null, zero
     v = vt[keep].T
-    bread = (v / sv[keep] ** 2) @ v.T  # (Js^T Js)^+
+    if bread is None:
+        inv = (v / sv[keep] ** 2) @ v.T  # (Js^T Js)^+
+    else:  # (Js^T diag(bread) Js)^+ over the identifiable directions
+        a = v.T @ ((js * bread[:, None]).T @ js) @ v
+        try:
+            inv = v @ np.linalg.inv(a) @ v.T
+        except np.linalg.LinAlgError:
+            return None, null, zero
     meat = (js * (r * r)[:, None]).T @ js
-    cov_s = bread @ meat @ bread
+    cov_s = inv @ meat @ inv
     return cov_s * d[:, None] * d[None, :], null, zero
 
 
@@ -593,13 +687,13 @@ def fit(
     fixed: Mapping[str, float] | None = None,
     init: Mapping[str, float] | None = None,
     param_bounds: Mapping[str, tuple[float, float]] | None = None,
-    cycles: int = 10_000,
-    population_size: int = 100,
+    cycles: int | None = None,
+    population_size: int | None = None,
     sample_size: int = 10,
-    children: int = 50,
+    children: int | None = None,
     mutation: tuple[float, float] = (1e-3, 1.0),
     subsample: int = 256,
-    final_subsample: int = 8192,
+    final_subsample: int | None = None,
     finalists: int = 16,
     epochs: int = 100,
     batch_size: int = 16384,
@@ -643,24 +737,30 @@ def fit(
     starts : number of starts: pose candidates (when ``pose``) first, then the same with random
         shape parameters; evolution and Adam run for all of them together (one batch of parameter
         sets), the best one is polished; every start is summarized in ``result.starts``.  None:
-        every pose candidate once with ``pose``, else 1.
+        with ``pose``, the pose candidates (the 8 the points fit best at the declared defaults when
+        there are more), else 1.
     units : the points' length unit ("mm"), carried to the result (and choosing the geometric
         residual under "auto").
     mesh_samples : points drawn by area on a mesh given as data (its vertices are kept as well).
     stages : stages to run, in order, among "evolution", "sgd", "polish" (e.g. ("sgd",) for the
-        paper's SGD alone).  None: all three.
+        paper's SGD alone).  None: all three; ("evolution", "polish") with a pose.
     fixed : name -> value of parameters held fixed (not fitted).
     init : name -> starting value: joins the initial population, or starts SGD/polish when no
         evolution runs (other free parameters then start at random, from ``seed``).
     param_bounds : name -> (lower, upper) narrowing the declared range for the search.
-    cycles : regularized evolution's history length (initial population included, Real et al.).
-    population_size, sample_size : population and tournament sizes.
-    children : tournaments (children) per batched generation; 1 gives the sequential algorithm.
+    cycles : regularized evolution's history length (initial population included, Real et al.),
+        per start.  None: 10,000 (the paper's), or 600 with a pose (each start's population then
+        begins around its pose candidate: a local search, many starts side by side).
+    population_size, sample_size : population and tournament sizes (population None: 100, 30
+        with a pose).
+    children : tournaments (children) per batched generation; 1 gives the sequential algorithm
+        (None: 50, 30 with a pose).
     mutation : (smallest, largest) standard deviation of the Gaussian mutation in the unit box;
         each child draws its own, log-uniformly.
     subsample : points used to score individuals (one random subset for the run).
     final_subsample, finalists : the best ``finalists`` of the history are re-scored on a fresh
-        subset of this size; the best becomes the start of the next stage.
+        subset of this size (None: 8192, 2000 with a pose); the best becomes the start of the next
+        stage.  Starts are compared on such a subset too.
     epochs, batch_size, lr : Adam on random batches; an epoch is one pass over the points; the
         learning rate (in the unit box) decays linearly to 0.
     polish_iters, xtol : function evaluations (None: 50, 200 with a robust loss, shared by the
@@ -721,8 +821,13 @@ def fit(
         residual = "geometric" if (units is not None or source != "array") else "algebraic"
     if polish_iters is None:
         polish_iters = 50 if loss == "l2" else 200
-    stages = STAGES if stages is None else stages
     posing = bool(pose) or is_posed(model)
+    protocol = POSED_PROTOCOL if posing else PAPER_PROTOCOL
+    stages = protocol["stages"] if stages is None else stages
+    cycles = protocol["cycles"] if cycles is None else cycles
+    population_size = protocol["population_size"] if population_size is None else population_size
+    children = protocol["children"] if children is None else children
+    final_subsample = protocol["final_subsample"] if final_subsample is None else final_subsample
     if pose and not is_posed(model):
         model = _posed_for(model, points, scale=pose == "scale")
     x, stages, box = _check_inputs(model, points, fixed, init, param_bounds, stages)
@@ -889,6 +994,14 @@ def _run_stages(
             u[j] = (float(init[k]) - prob.lower[j]) / (prob.upper[j] - prob.lower[j])
     init_u = u.clone() if init else None
     many = _start_vectors(prob, init, gen, candidates or [], starts)
+    if many is not None and starts is None and many.shape[0] > AUTO_STARTS:
+        # more pose candidates than automatic starts: keep those the points fit best as they are
+        m = min(cfg["final_subsample"], x.shape[0])
+        xs = xw[torch.randperm(x.shape[0], generator=gen)[:m].to(x.device)]
+        with torch.no_grad():
+            scores = prob.objective(prob.f(xs, prob.to_params(many.to(xw.dtype).to(x.device))))
+        order = torch.nan_to_num(scores.to(torch.float64).cpu(), nan=math.inf).argsort()[:AUTO_STARTS]
+        many = many[order.sort().values]
     if many is not None:
         u, init_u = many, many
     first = u.clone()
@@ -931,6 +1044,18 @@ def _run_stages(
         else:
             polished = _polish(prob, x, u, cfg, report)
             stopped, history[stage] = polished["stopped"], polished["losses"]
+            for _ in range(PROBES if prob.loss != "l2" else 0):
+                if stopped:
+                    break
+                jump = _probe(prob, xw, polished["p"], polished["scale"], cfg)
+                if jump is None:
+                    break
+                again = _polish(prob, x, torch.as_tensor(prob.to_unit(jump)), cfg, report)
+                history[stage] += again["losses"]
+                stopped = again["stopped"]
+                before, after = (_loss_at(prob, x, q["p"], polished["scale"]) for q in (polished, again))
+                if after < before:
+                    polished = again
             u = torch.as_tensor(prob.to_unit(polished["p"]))
         timings[stage] = time.perf_counter() - t0
         if stopped:

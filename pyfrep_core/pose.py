@@ -245,13 +245,19 @@ def _pca(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return c, v, np.sqrt(w)
 
 
-def _robust_cloud(points: np.ndarray) -> np.ndarray:
-    """The points without the 10 % farthest from the coordinate-wise median (scaled by each axis' spread):
-    stray points (outliers, a fixture) move a centroid and a covariance, most of the part does not."""
-    med = np.median(points, axis=0)
-    spread = np.median(np.abs(points - med), axis=0) + 1e-300
-    d = np.linalg.norm((points - med) / spread, axis=1)
-    return points[d <= np.quantile(d, 0.9)] if len(points) >= 20 else points
+def _robust_cloud(points: np.ndarray, k: int = 8) -> np.ndarray:
+    """The points without the stray ones: those whose mean distance to their ``k`` nearest neighbours
+    exceeds twice the median of that distance (a scan's surface points lie densely on a surface,
+    stray points sparsely in space: a statistical outlier filter).  Stray points would tilt the
+    principal axes of a part whose spreads are alike."""
+    from scipy.spatial import cKDTree
+
+    if len(points) <= 4 * k:
+        return points
+    dist, _ = cKDTree(points).query(points, k=k + 1)
+    spacing = dist[:, 1:].mean(1)
+    kept = points[spacing <= 2.0 * np.median(spacing)]
+    return kept if len(kept) > points.shape[1] else points
 
 
 def _signed_permutations(d: int, groups: list[list[int]]) -> list[np.ndarray]:
@@ -292,8 +298,8 @@ def initial_pose(
 ) -> list[dict[str, float]]:
     """Candidate starting poses of ``model`` for the cloud ``points`` (for :func:`posed`'s parameters).
 
-    The cloud's centroid and principal axes (PCA, after setting aside the 10 % of points farthest
-    from its median, so that stray points move them little) are matched to the model's own (its
+    The cloud's centroid and principal axes (PCA, after setting aside the stray points: sparse
+    where the surface's points are dense) are matched to the model's own (its
     surface sampled at ``params``, or the origin and the coordinate axes when ``model`` is None):
     ``R = U_cloud P U_model^T``, ``t = c_cloud - s R c_model``.  A principal axis has no sign, so P
     runs over the sign flips; axes whose spreads differ by less than ``symmetry_tol`` (relative) are

@@ -43,6 +43,7 @@ __all__ = [
     "value_and_gradnorm",
     "rho",
     "weights",
+    "slopes",
     "robust_scale",
     "objective",
     "inliers",
@@ -135,6 +136,25 @@ def weights(r: torch.Tensor, loss: str, scale: float | torch.Tensor) -> torch.Te
     if loss == "cauchy":
         return 1.0 / (1.0 + (u / c) ** 2)
     return (a <= c).to(u.dtype)
+
+
+def slopes(r: torch.Tensor, loss: str, scale: float | torch.Tensor) -> torch.Tensor:
+    """``rho''(u) / 2`` at u = r / s: the curvature of each point's loss, the M-estimator's "bread"
+    weight in its sandwich covariance (the IRLS weight w is the secant slope ``rho'(u) / 2u``; they
+    agree for l2, and for huber and trimmed within their threshold).
+
+    >>> import torch
+    >>> slopes(torch.tensor([0.0, 3.0]), "cauchy", 1.0)
+    tensor([ 1.0000, -0.0883])
+    """
+    c = _check(loss)
+    u = r / scale
+    if loss == "l2":
+        return torch.ones_like(u)
+    if loss == "cauchy":
+        q = (u / c) ** 2
+        return (1.0 - q) / (1.0 + q) ** 2
+    return (u.abs() <= c).to(u.dtype)
 
 
 def robust_scale(r: torch.Tensor) -> torch.Tensor:

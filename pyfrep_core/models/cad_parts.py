@@ -5,7 +5,8 @@ Each is written with the exact distance functions of :mod:`pyfrep_core.sdf` (``f
 4 to 6 dimensions with a range around a nominal size.  Each part sits in its own frame: the origin
 near its centre, its main axis along z.  ``TRUTH`` holds one set of dimensions inside the declared
 ranges and away from their defaults (what a fit should recover); ``SIZE`` each part's largest
-extent (mm), the scale of its noise in the tests and benchmark.
+extent (mm), the scale of its noise.  :func:`scan` makes the synthetic measurement the tests, the
+benchmark and the lessons fit: surface points in a random pose, noise and stray points.
 
 - :func:`flanged_bushing`: a tube with a flange at one end (axisymmetric: its turn about z is free);
 - :func:`hex_nut`: a hexagonal prism with a bore and the 30-degree chamfers of a nut on both faces;
@@ -22,14 +23,17 @@ True
 
 from __future__ import annotations
 
+import functools
 import math
+from typing import Any
 
+import numpy as np
 import torch
 
 from .. import sdf
 from ..model import Param, model
 
-__all__ = ["flanged_bushing", "hex_nut", "l_bracket", "bearing_ring", "PARTS", "TRUTH", "SIZE"]
+__all__ = ["flanged_bushing", "hex_nut", "l_bracket", "bearing_ring", "PARTS", "TRUTH", "SIZE", "scan"]
 
 
 def _slab(h: torch.Tensor, half: torch.Tensor) -> torch.Tensor:
@@ -159,3 +163,69 @@ TRUTH = {
 }
 
 SIZE = {"flanged_bushing": 41.0, "hex_nut": 25.9, "l_bracket": 48.0, "bearing_ring": 54.8}
+
+
+@functools.lru_cache(maxsize=16)
+def _surface(name: str, n: int, seed: int) -> np.ndarray:
+    from ..sampling import sample_surface
+
+    points = sample_surface(PARTS[name], n, params=TRUTH[name], seed=seed, resolution=96)
+    points.flags.writeable = False  # shared by the calls that hit the cache
+    return points
+
+
+def scan(
+    name: str, n: int = 5000, noise: float = 1e-3, outliers: float = 0.05, seed: int = 0, noise_seed: int | None = None
+) -> dict[str, Any]:
+    """A synthetic scan of part ``name`` at its ``TRUTH``: what a measured cloud looks like.
+
+    ``n`` points on the true surface (area-uniform, exact to rounding), moved by a random rigid
+    pose (a uniform rotation, a translation within 50 mm), Gaussian noise of ``noise`` times the
+    part's ``SIZE`` on each coordinate, then stray points (a fraction ``outliers`` of the cloud)
+    uniform in the noisy cloud's bounding box, after the surface points.
+
+    Parameters
+    ----------
+    name : one of ``PARTS``.
+    n : surface points.
+    noise : noise standard deviation as a fraction of the part's size.
+    outliers : fraction of the returned points that are stray (0 <= outliers < 1).
+    seed : seeds the surface sample, the pose, the noise and the stray points.
+    noise_seed : another noise draw on the same surface points and pose (refits); default ``seed``.
+
+    Returns
+    -------
+    dict: ``points`` (M, 3) float64 mm; ``outlier`` (M,) bool; ``surface`` (n, 3) the posed points
+    before noise; ``sigma`` the noise (mm); ``pose`` the truth's ``tx, ty, tz, rx, ry, rz``
+    (:func:`pyfrep_core.pose.posed`'s parameters); ``rotation`` (3, 3); ``truth`` the dimensions.
+
+    Examples
+    --------
+    >>> s = scan("hex_nut", n=200, seed=1)
+    >>> s["points"].shape, int(s["outlier"].sum()), round(s["sigma"], 4)
+    ((211, 3), 11, 0.0259)
+    """
+    from scipy.spatial.transform import Rotation
+
+    if name not in PARTS:
+        raise ValueError(f"scan: name must be one of {', '.join(sorted(PARTS))}, got {name!r}")
+    if not 0.0 <= outliers < 1.0:
+        raise ValueError(f"scan: outliers must be in [0, 1), got {outliers!r}")
+    rng = np.random.default_rng(seed)
+    rotation = Rotation.random(random_state=seed).as_matrix()
+    t = rng.uniform(-50.0, 50.0, 3)
+    sigma = noise * SIZE[name]
+    surface = _surface(name, n, seed) @ rotation.T + t
+    noise_rng = np.random.default_rng([seed, noise_seed]) if noise_seed is not None else rng
+    noisy = surface + noise_rng.normal(0.0, sigma, surface.shape)
+    n_out = round(outliers / (1.0 - outliers) * n)
+    stray = rng.uniform(noisy.min(0), noisy.max(0), (n_out, 3))
+    return {
+        "points": np.vstack([noisy, stray]),
+        "outlier": np.r_[np.zeros(n, bool), np.ones(n_out, bool)],
+        "surface": surface,
+        "sigma": sigma,
+        "pose": dict(zip(("tx", "ty", "tz", "rx", "ry", "rz"), [*t, *Rotation.from_matrix(rotation).as_rotvec()])),
+        "rotation": rotation,
+        "truth": dict(TRUTH[name]),
+    }

@@ -104,7 +104,13 @@ class Interval(torch.Tensor):
 
     @staticmethod
     def of(lo: torch.Tensor, hi: torch.Tensor, expr: tuple | None = None) -> Interval:
-        """The interval ``[lo, hi]`` (broadcast to one shape); ``expr`` records how it was built."""
+        """The interval ``[lo, hi]`` (broadcast to one shape); ``expr`` records how it was built.
+
+        >>> import torch
+        >>> box = Interval.of(torch.tensor([[0.0, 1.0]]), torch.tensor([[0.5, 2.0]]))
+        >>> (box[:, 0] - box[:, 1]).lo <= -2.0
+        tensor([True])
+        """
         if lo.shape != hi.shape:
             lo, hi = torch.broadcast_tensors(lo, hi)
         out = lo.as_subclass(Interval)
@@ -959,6 +965,8 @@ def _hypot(a: Any, b: Any) -> Interval:
 
 def _both(method: str) -> Callable:
     def rule(a: Interval, *args: Any, **kwargs: Any) -> Any:
+        if not isinstance(a, Interval):
+            raise _unsupported(f"{method} of a tensor with interval arguments")
         args = tuple(v.lo if isinstance(v, Interval) else v for v in args)
         lo, hi = getattr(a.lo, method)(*args, **kwargs), getattr(a.hi, method)(*args, **kwargs)
         if isinstance(lo, tuple | list):
@@ -1005,15 +1013,19 @@ def _iter(a: Interval) -> Any:
 
 
 @_rule("expand_as")
-def _expand_as(a: Interval, other: Any) -> Interval:
-    target = other.lo if isinstance(other, Interval) else other
-    return _exact(a.lo.expand_as(target), a.hi.expand_as(target))
+def _expand_as(a: Any, other: Any) -> Any:
+    shape = other._meta[2] if isinstance(other, Interval) else other.shape
+    if not isinstance(a, Interval):  # a constant given the interval's shape
+        return a.expand(shape)
+    return _exact(a.lo.expand(shape), a.hi.expand(shape))
 
 
 @_rule("reshape_as", "view_as")
-def _reshape_as(a: Interval, other: Any) -> Interval:
-    target = other.lo if isinstance(other, Interval) else other
-    return _exact(a.lo.reshape(target.shape), a.hi.reshape(target.shape))
+def _reshape_as(a: Any, other: Any) -> Any:
+    shape = other._meta[2] if isinstance(other, Interval) else other.shape
+    if not isinstance(a, Interval):
+        return a.reshape(shape)
+    return _exact(a.lo.reshape(shape), a.hi.reshape(shape))
 
 
 def _convert(lo: torch.Tensor, new_lo: torch.Tensor, new_hi: torch.Tensor) -> Interval:
@@ -1027,15 +1039,21 @@ def _convert(lo: torch.Tensor, new_lo: torch.Tensor, new_hi: torch.Tensor) -> In
 
 
 @_rule("to")
-def _to(a: Interval, *args: Any, **kwargs: Any) -> Interval:
-    args = tuple(v.lo if isinstance(v, Interval) else v for v in args)
+def _to(a: Any, *args: Any, **kwargs: Any) -> Any:
+    if any(isinstance(v, Interval) for v in args):  # x.to(other): other's dtype and device
+        other = next(v for v in args if isinstance(v, Interval))
+        args, kwargs = (), {**kwargs, "dtype": other._meta[0], "device": other._meta[1]}
+    if not isinstance(a, Interval):
+        return a.to(*args, **kwargs)
     return _convert(a.lo, a.lo.to(*args, **kwargs), a.hi.to(*args, **kwargs))
 
 
 @_rule("type_as")
-def _type_as(a: Interval, other: Any) -> Interval:
-    other = other.lo if isinstance(other, Interval) else other
-    return _convert(a.lo, a.lo.type_as(other), a.hi.type_as(other))
+def _type_as(a: Any, other: Any) -> Any:
+    dtype = other._meta[0] if isinstance(other, Interval) else other.dtype
+    if not isinstance(a, Interval):
+        return a.to(dtype)
+    return _convert(a.lo, a.lo.to(dtype), a.hi.to(dtype))
 
 
 @_rule("double")
@@ -1166,6 +1184,19 @@ def _einsum(equation: str, *operands: Any) -> Interval:
     terms = _contracted_length(equation, [a.lo if i == k else v for i, v in enumerate(operands)])
     widen = spread * (1 + 4 * torch.finfo(spread.dtype).eps) + (terms + 4) * torch.finfo(size.dtype).eps * size
     return _out1(center - widen, center + widen)
+
+
+@_rule("cross")
+def _cross(a: Any, b: Any, dim: int | None = None) -> Interval:
+    """The cross product from its components (products and differences of intervals); 3-vectors on ``dim``."""
+    d = -1 if dim is None else dim
+
+    def comp(v: Any, i: int) -> Any:
+        return v.select(d, i)
+
+    x = [(1, 2), (2, 0), (0, 1)]
+    parts = [_sub(_mul(comp(a, i), comp(b, j)), _mul(comp(a, j), comp(b, i))) for i, j in x]
+    return _join(torch.stack)(parts, d)
 
 
 @_rule("__repr__", "__str__", "__format__")

@@ -55,7 +55,7 @@ def test_dense_round_trip_against_closed_forms(tmp_path):
 
 
 def test_band_evaluates_only_near_the_surface_and_proves_the_rest(tmp_path):
-    n, w = 41, 0.05
+    n, w = 33, 0.05
     save_field(tmp_path / "dense.vti", fig1_part, fig1_part.bounds, n)
     dense = pv.read(tmp_path / "dense.vti")
     banded = save_field(tmp_path / "band.vti", fig1_part, fig1_part.bounds, n, band=w, extra=("grad_norm",))

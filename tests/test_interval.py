@@ -184,7 +184,9 @@ def test_user_torch_code_over_the_rules():
         z = (x @ torch.tensor([[1.0, -2.0], [0.5, 0.0], [0.0, 3.0]], dtype=x.dtype)).amax(-1) + 1.0 / (2.0 + a)
         q = torch.maximum(a, b).min(torch.minimum(b, c)) + torch.cat([a[:, None], b[:, None]], 1).sum(-1)
         r = torch.remainder(a * 3.0, 1.0) + torch.floor(2.0 * b) + torch.round(c) + (a - b) ** 3 + torch.tan(0.3 * c)
-        return u + v + w + z + q + r + x.mean(-1) + torch.hypot(a, c) - 2.0**b + torch.sigmoid(c) + torch.atan(a)
+        k = torch.tensor([0.3, -1.0, 2.0]).type_as(x).expand_as(x)  # a constant vector per point
+        s = torch.linalg.cross(x, k)[:, 0] + torch.einsum("ij,j->i", x, k[0]) + torch.exp(-(a**2)) * torch.cosh(b)
+        return u + v + w + z + q + r + s + x.mean(-1) + torch.hypot(a, c) - 2.0**b + torch.sigmoid(c) + torch.atan(a)
 
     check_sound(f)
 
@@ -369,6 +371,20 @@ def test_a_decided_python_if_is_fine():
     flo, fhi = bounds(f, lo, lo + 0.5)
     assert float(flo[0]) <= 0.2 and float(fhi[0]) >= 0.7 and float(fhi[0] - flo[0]) < 0.5 + 1e-12
     assert supports(models.fig1_part) and supports(models.microstructure)
+
+
+def test_threads_give_the_serial_bounds():
+    from concurrent.futures import ThreadPoolExecutor
+
+    g = torch.Generator().manual_seed(2)
+    boxes = [torch.rand(500, 3, generator=g, dtype=torch.float64) * 2 - 1 for _ in range(8)]
+    models_ = [models.fig1_part, models.pawn, lambda x: P.gyroid(x, alpha=1.0, beta=1.0, gamma=1.0, c=0.1)]
+    jobs = [(f, b) for f in models_ for b in boxes]
+    serial = [bounds(f, b, b + 0.1) for f, b in jobs]
+    with ThreadPoolExecutor(4) as pool:
+        threaded = list(pool.map(lambda job: bounds(job[0], job[1], job[1] + 0.1), jobs))
+    for (a, b), (c, d) in zip(serial, threaded, strict=True):
+        assert torch.equal(a, c) and torch.equal(b, d)
 
 
 def test_ordinary_use_is_untouched():

@@ -63,9 +63,34 @@ off, and the error spreads over the whole domain (with all-SiLU units, 600 steps
   3.3e-3 -> 2.3e-3 after 4000 steps (seeds 0-2: 2.3e-3, 2.4e-3, 2.6e-3), 2.1e-3 after 8000;
   clip 1.0 still diverged, 0.03: 2.6e-3, 3.0e-3.
 
-Defaults from these: 4000 steps of 256 pool + 64 eikonal points, last hidden layer leaky
-ReLU, clip 0.1, one thread (~9 s).  Box 2.3e-3, sphere 9.2e-4 after 1500 steps; ellipsoid
-below 4.6e-3 after 3.5-4.0 s and 7.7e-4 after 10 s (scikit-fmm 128^3: 1.5e-3 on its grid).
+Paper mode (``mode="paper"``: the eikonal loss, every target from f, no distance labels),
+measured on the pawn (mean |d - true distance| over a 32^3 grid of its bounds; omega_1 = f /
+sqrt(f^2 + |grad f|^2): 1.31e-1; seed 0, 1500 steps unless said; CPU seconds of one thread,
+the machine under a load of 6-17):
+
+* eikonal (weight 0.01) + g = 0 on the surface, as ``supervised=0`` trained before: 1.29e-1;
+* eikonal weight 1, g = 0 (weight 100) and grad g = -n (the unit normal from grad f, weight 1)
+  on surface samples, 256 uniform + 256 points within 0.05 of the surface a step: 1.77e-2
+  (without the normal term 2.26e-2, normal weight 10: 2.28e-2); lr 2e-2 with clip 0.1 (5e-3:
+  3.1e-2 after 800 steps, 5e-2: 2.4e-2);
+* last hidden layer SiLU instead of leaky ReLU: 1.41e-2 (tanh: 1.1e-1); a hinge sign(g) =
+  sign(f), g = f/|grad f| near the surface (first-order omega), L1 eikonal, SAL's sphere
+  initialisation: no better (1.73e-2, 2.0e-2, 1.45e-2, 2.8e-2);
+* 88 % of the error is outside, |d| > 0.2, a slope bias: |d| too large past the concave
+  parts' medial axis (the neck), where a smooth g overshoots.  The distance is the largest
+  1-Lipschitz function vanishing on the surface, so slopes above 1 are the error that
+  spreads: weighting relu(|grad g| - 1)^2 3x more (``over_slope=3``): 1.26e-2 (10x: 2.2e-2,
+  the bias turns into an underestimate);
+* 128 + 128 points a step (half): 1.50e-2 at 0.7x the time; near points spread 0.2 (8 % of
+  the box) instead of 0.05: 9.8e-3 (0.1: 1.16e-2, 0.3: 1.23e-2); 2000 steps: 9.9e-3.
+
+Paper-mode defaults from these: 1500 steps, 128 uniform + 128 near (std 8 % of the box's
+longest side) eikonal points + 128 surface samples, all SiLU, lr 2e-2, clip 0.1: pawn 1.04e-2,
+1.06e-2, 1.26e-2 for seeds 0-2 (omega_1 / 12.6, / 12.4, / 10.4) after 14-16 s of CPU.
+
+Supervised-mode defaults from the measurements above: 4000 steps of 256 pool + 64 eikonal
+points, last hidden layer leaky ReLU, clip 0.1, one thread (~9 s).  Box 2.3e-3, sphere 9.2e-4
+after 1500 steps; ellipsoid below 4.6e-3 after 3.5-4.0 s and 7.7e-4 after 10 s (scikit-fmm 128^3: 1.5e-3 on its grid).
 
 >>> import torch
 >>> from pyfrep_core import sphere
@@ -97,6 +122,15 @@ from .progress import Event, Progress, StopFlag
 __all__ = ["RedistancedSDF", "redistance", "load_redistanced"]
 
 FORMAT = "pyfrep-redistanced-1"
+# per-mode defaults of redistance (module docstring: the measurements behind them)
+MODE_DEFAULTS: dict[str, dict[str, Any]] = {
+    "supervised": {"steps": 4000, "batch": 256, "lr": 5e-2, "eikonal": 0.01, "surface_resolution": 64,
+                   "last_activation": "leaky_relu"},
+    "paper": {"steps": 1500, "batch": 128, "lr": 2e-2, "eikonal": 1.0, "surface_resolution": 48,
+              "last_activation": None},
+}  # fmt: skip
+PAPER_WEIGHTS = {"boundary": 100.0, "normal": 1.0, "over_slope": 3.0}
+NEAR_SCALE = 0.08  # paper mode: std of the near-surface points, a fraction of the box's longest side
 
 
 class RedistancedSDF(ImplicitNetwork):
@@ -249,20 +283,24 @@ def _training_pool(
 def redistance(
     f: Callable,
     bounds: Any = None,
-    steps: int = 4000,
+    steps: int | None = None,
     loss: str = "eikonal",
     p: float = 8.0,
-    supervised: float = 1.0,
-    eikonal: float = 0.01,
-    batch: int = 256,
-    lr: float = 5e-2,
+    mode: str = "supervised",
+    supervised: float | None = None,
+    eikonal: float | None = None,
+    boundary: float | None = None,
+    normal: float | None = None,
+    over_slope: float | None = None,
+    batch: int | None = None,
+    lr: float | None = None,
     clip_grad: float | None = 0.1,
     width: int = 128,
     depth: int = 3,
     activation: str = "silu",
-    last_activation: str | None = "leaky_relu",
+    last_activation: str | None = "auto",
     fourier_features: int = 0,
-    surface_resolution: int = 64,
+    surface_resolution: int | None = None,
     pool_size: int = 1 << 15,
     refit: bool = True,
     seed: int = 0,
@@ -275,30 +313,53 @@ def redistance(
 ) -> RedistancedSDF:
     """Train ``d(x) = sign(f(x)) h(x; theta)`` to be the signed distance to {f = 0} in ``bounds``.
 
+    Two modes (the module docstring has the measurements behind each default):
+
+    * ``mode="paper"``: the paper's method (eq. ``loss_eik``), no distance labels.  Every
+      target comes from f: the eikonal loss ``(|grad g| - 1)^2 + over_slope relu(|grad g| - 1)^2``
+      (weight ``eikonal``, default 1) on ``batch`` uniform points of the box and ``batch``
+      points near the surface; on ``batch`` surface samples of f = 0 (projected by Newton steps)
+      g = 0 (weight ``boundary``, default 100) and grad g = the inward unit normal
+      -grad f/|grad f| (weight ``normal``, default 1).  Defaults: 1500 steps, batch 128, lr 2e-2,
+      all-SiLU network, surface_resolution 48.
+    * ``mode="supervised"`` (the default): adds distance labels: ``E (g - d*)^2`` (weight
+      ``supervised``, default 1) on a pool whose distances d* come from
+      :func:`pyfrep_core.distance.true_distance`, the eikonal term a light regularizer (weight
+      0.01), then a least-squares refit of the last layer.  Defaults: 4000 steps, batch 256,
+      lr 5e-2, last hidden layer leaky ReLU, surface_resolution 64.
+
     Parameters
     ----------
     f : callable (N, 3) -> (N,), f >= 0 inside (a Model gives its default bounds).
     bounds : ((xmin, ymin, zmin), (xmax, ymax, zmax)): the box sampled during training.
-    steps : Adam steps (the learning rate decays along a cosine over them).
+    steps : Adam steps (the learning rate decays along a cosine over them); None: the mode's.
     loss : "eikonal" (``(|grad d| - 1)^2``) or "p-poisson" (energy ``|grad d|^p / p - |d|``).
     p : exponent of the p-Poisson energy.
-    supervised : weight of the supervised term on the pool of points with known distance
-        (0: the paper's unsupervised training).
-    eikonal : weight of the eikonal (or p-Poisson) term.
-    batch : pool points per step for the supervised term; the eikonal term gets batch / 4
-        fresh uniform points (all ``batch`` when unsupervised).
-    lr : peak Adam learning rate.
+    mode : "paper" (no distance labels) or "supervised" (labels from the true distance).
+    supervised : weight of the supervised term (supervised mode; None: 1, must be > 0 there;
+        paper mode: None or 0).
+    eikonal : weight of the eikonal (or p-Poisson) term (None: 1 in paper mode, 0.01 supervised).
+    boundary, normal : paper mode: weights of g = 0 and of grad g = -n on the surface samples
+        (None: 100 and 1).
+    over_slope : paper mode: extra weight of |grad g| > 1 in the eikonal term (None: 3): the
+        distance is the largest 1-Lipschitz function that vanishes on the surface, so a slope
+        above 1 (overshooting past the medial axis) is the error that spreads outward.
+    batch : supervised mode: pool points per step, plus batch / 4 fresh uniform points for the
+        eikonal term; paper mode: points per group (uniform, near, on the surface).  None: the mode's.
+    lr : peak Adam learning rate (None: the mode's).
     clip_grad : the gradient (over all weights) is clipped to this norm before each Adam
         step (None: not clipped).
     width, depth, activation : the MLP g (hidden width, hidden layers, activation: "silu",
         "softplus", "tanh", "relu" or "leaky_relu" (slope 0.1)).
-    last_activation : activation of the last hidden layer (None: ``activation``); piecewise
-        linear units there let g follow the distance's creases (medial axis).
+    last_activation : activation of the last hidden layer (None: ``activation``; "auto": leaky
+        ReLU in supervised mode, ``activation`` in paper mode); piecewise linear units there let
+        g follow the distance's creases (medial axis) when labels pin them.
     fourier_features : number of random Fourier features of the input (0: none).
-    surface_resolution : marching-cubes resolution of the surface samples.
-    pool_size : points with known distance (a quarter near the surface, an eighth on it).
-    refit : after the Adam steps, solve the supervised term exactly for the last layer
-        (linear least squares; the hidden layers are kept): a large gain for no time.
+    surface_resolution : marching-cubes resolution of the surface samples (None: the mode's).
+    pool_size : supervised mode: points with known distance (a quarter near the surface, an
+        eighth on it).
+    refit : supervised mode: after the Adam steps, solve the supervised term exactly for the
+        last layer (linear least squares; the hidden layers are kept): a large gain for no time.
     seed : seeds the pool, the batches and the initial weights.
     dtype : dtype of the network (float32 is faster on a CPU).
     threads : torch intra-op threads while training (restored after; None: leave as set).
@@ -319,8 +380,20 @@ def redistance(
     TypeError : f not callable; an option of the wrong type (a string for a number, a number
         for a flag).  ValueError : bad bounds (NaN, inverted), f without zero set in the bounds,
         an option out of its range (every number finite; steps, batch, pool_size, every, lr,
-        clip_grad positive; supervised, eikonal >= 0 and not both 0; counts and seed integers),
-        an unknown loss or activation; the message names the option and its value.
+        clip_grad positive; supervised, eikonal, boundary, normal, over_slope >= 0; supervised
+        > 0 in supervised mode (without labels: ``mode="paper"``), 0 in paper mode; counts and
+        seed integers), a paper-mode weight given in supervised mode, an unknown mode, loss or
+        activation; the message names the option and its value.
+
+    Examples
+    --------
+    >>> import torch
+    >>> from pyfrep_core import sphere
+    >>> ball = lambda x: sphere(x, r=1.0)
+    >>> d = redistance(ball, ((-1.5,) * 3, (1.5,) * 3), mode="paper", steps=300, progress=False)
+    >>> out = d(torch.tensor([[0.0, 0.0, 0.5], [1.3, 0.0, 0.0]]))
+    >>> bool(torch.allclose(out, torch.tensor([0.5, -0.3]), atol=0.05))
+    True
     """
     if not callable(f):
         raise TypeError(f"f must be callable (points (N, 3) -> values (N,)), got {type(f).__name__}")
@@ -330,6 +403,16 @@ def redistance(
             raise ValueError("bounds must be given for a function without default bounds")
     lo, hi = check_bounds(bounds, 3)
     fn = "redistance"
+    mode = check_option(mode, "mode", fn, "choice", choices=tuple(MODE_DEFAULTS))
+    defaults = MODE_DEFAULTS[mode]
+    steps, batch, lr, eikonal, surface_resolution = (
+        defaults[name] if value is None else value
+        for name, value in zip(
+            ("steps", "batch", "lr", "eikonal", "surface_resolution"), (steps, batch, lr, eikonal, surface_resolution)
+        )
+    )
+    if isinstance(last_activation, str) and last_activation == "auto":
+        last_activation = defaults["last_activation"]
     loss = check_option(loss, "loss", fn, "choice", choices=("eikonal", "p-poisson"))
     steps = check_option(steps, "steps", fn, "int", positive=True)
     batch = check_option(batch, "batch", fn, "int", positive=True)
@@ -344,10 +427,32 @@ def redistance(
     p = check_option(p, "p", fn)
     if loss == "p-poisson" and not p > 1:
         raise ValueError(f"redistance: p must be > 1 for the p-Poisson energy, got {p!r}")
-    supervised = check_option(supervised, "supervised", fn, minimum=0.0)
+    supervised = check_option(supervised, "supervised", fn, minimum=0.0, none=True)
     eikonal = check_option(eikonal, "eikonal", fn, minimum=0.0)
-    if supervised + eikonal == 0:
-        raise ValueError(f"redistance: supervised and eikonal must not both be 0, got {supervised}, {eikonal}")
+    weights = {
+        name: check_option(value, name, fn, minimum=0.0, none=True)
+        for name, value in (("boundary", boundary), ("normal", normal), ("over_slope", over_slope))
+    }
+    if mode == "paper":
+        if supervised:
+            raise ValueError(
+                f"redistance: supervised must be 0 or None in paper mode (no distance labels), got {supervised}"
+            )
+        weights = {name: PAPER_WEIGHTS[name] if value is None else value for name, value in weights.items()}
+        if eikonal == 0 or weights["boundary"] == 0:
+            raise ValueError(
+                f"redistance: paper mode needs eikonal > 0 and boundary > 0, got {eikonal}, {weights['boundary']}"
+            )
+    else:
+        supervised = 1.0 if supervised is None else supervised
+        if supervised == 0:
+            raise ValueError(
+                "redistance: supervised must be > 0 in supervised mode, got 0.0 (supervised and eikonal must not "
+                "both be 0; for training without distance labels use mode='paper')"
+            )
+        given = [f"{name}={value!r}" for name, value in weights.items() if value is not None]
+        if given:
+            raise ValueError(f"redistance: {', '.join(given)} weigh paper-mode terms; pass mode='paper' to use them")
     refit = check_option(refit, "refit", fn, "bool")
     progress = check_option(progress, "progress", fn, "bool")
     seed = check_option(seed, "seed", fn, "int", minimum=0, maximum=MAX_SEED)
@@ -364,15 +469,12 @@ def redistance(
     )  # fmt: skip
     if stop is not None and stop.is_set():
         return model.eval()  # stopped before the pool was built: the untrained network, empty history
-    if supervised > 0:
-        pool = _training_pool(f, lo, hi, pool_size, surface_resolution, seed, stop)
-        fit_weight = supervised
-    else:
-        # unsupervised: the eikonal equation's boundary condition, d = 0 on the surface (sign(f)
-        # alone does not pin h to 0 there), on surface samples
-        pool_x = torch.as_tensor(surface_samples(f, (lo, hi), surface_resolution, seed=seed).points)
-        pool = pool_x, torch.zeros(len(pool_x), dtype=torch.float64)
-        fit_weight = 1.0
+    if mode == "paper":
+        _train_paper(model, f, lo, hi, steps, loss, p, eikonal, weights, batch, lr, clip_grad,
+                     surface_resolution, seed, threads, callback, every, stop, progress)  # fmt: skip
+        return model.eval()
+    pool = _training_pool(f, lo, hi, pool_size, surface_resolution, seed, stop)
+    fit_weight = supervised
     if pool is None or (stop is not None and stop.is_set()):
         return model.eval()  # stopped while the pool was built: the untrained network, empty history
     pool_x, pool_d = pool
@@ -383,8 +485,7 @@ def redistance(
     schedule = torch.optim.lr_scheduler.LambdaLR(optimizer, lambda k: cosine_lr(k, int(steps)))
     # the supervised term needs g only; the eikonal term needs grad g (double backward, ~3x
     # the cost per point), so it gets a smaller batch of fresh uniform points
-    n_pool = batch if supervised > 0 else max(64, batch // 4)
-    n_pde = max(64, batch // 4) if supervised > 0 else batch
+    n_pool, n_pde = batch, max(64, batch // 4)
     with intra_op_threads(threads), Progress(int(steps), "redistance", callback, every, stop, progress) as bar:
         for step in range(int(steps)):
             x = _uniform(n_pde, lo_t, hi_t, gen)
@@ -409,10 +510,77 @@ def redistance(
             model.history.append(value)
             if bar.update(step, value, supervised=float(fit.detach()), pde=float(pde.detach())):
                 break
-    if supervised > 0 and refit:
+    if refit:
         _refit_last_layer(model, pool_x, pool_d)
     model.eval()
     return model
+
+
+def _train_paper(
+    model: RedistancedSDF,
+    f: Callable,
+    lo: tuple,
+    hi: tuple,
+    steps: int,
+    loss: str,
+    p: float,
+    eikonal: float,
+    weights: dict[str, float],
+    batch: int,
+    lr: float,
+    clip_grad: float | None,
+    surface_resolution: int,
+    seed: int,
+    threads: int | None,
+    callback: Callable[[Event], Any] | None,
+    every: int,
+    stop: StopFlag | None,
+    progress: bool,
+) -> None:
+    """The paper's training (eq. ``loss_eik``): every target from f, no distance labels.
+
+    Each step: the eikonal term on ``batch`` uniform points and ``batch`` points within about
+    NEAR_SCALE x the box's longest side of the surface; g = 0 and grad g = -n (n = grad f/|grad f|
+    negated: the outward normal; g > 0 inside) on ``batch`` projected surface samples.
+    """
+    samples = surface_samples(f, (lo, hi), surface_resolution, seed=seed)
+    if stop is not None and stop.is_set():
+        return
+    dtype = model.dtype
+    surf = torch.as_tensor(samples.points, dtype=dtype)
+    inward = -torch.as_tensor(samples.normals, dtype=dtype)
+    lo_t, hi_t = torch.tensor(lo, dtype=dtype), torch.tensor(hi, dtype=dtype)
+    sigma = NEAR_SCALE * float((hi_t - lo_t).max())
+    gen = torch.Generator().manual_seed(seed + 1)
+    optimizer = torch.optim.Adam(model.parameters(), lr=lr)
+    schedule = torch.optim.lr_scheduler.LambdaLR(optimizer, lambda k: cosine_lr(k, int(steps)))
+    n = int(batch)
+    with intra_op_threads(threads), Progress(int(steps), "redistance", callback, every, stop, progress) as bar:
+        for step in range(int(steps)):
+            on = torch.randint(len(surf), (n,), generator=gen)
+            near = surf[torch.randint(len(surf), (n,), generator=gen)]
+            near = near + sigma * torch.randn(n, 3, generator=gen, dtype=dtype)
+            near = torch.minimum(torch.maximum(near, lo_t), hi_t)
+            x = torch.cat([_uniform(n, lo_t, hi_t, gen), near, surf[on]])
+            g, dg = value_and_grad(model.signed_network, x, create_graph=True)
+            slope = dg[: 2 * n].norm(dim=-1)
+            if loss == "eikonal":
+                pde = ((slope - 1.0) ** 2 + weights["over_slope"] * torch.relu(slope - 1.0) ** 2).mean()
+            else:
+                pde = (slope**p / p - g[: 2 * n].abs()).mean()
+            zero = (g[2 * n :] ** 2).mean()
+            normal = ((dg[2 * n :] - inward[on]) ** 2).sum(-1).mean()
+            total = eikonal * pde + weights["boundary"] * zero + weights["normal"] * normal
+            optimizer.zero_grad(set_to_none=True)
+            total.backward()
+            if clip_grad is not None:
+                torch.nn.utils.clip_grad_norm_(model.parameters(), clip_grad)
+            optimizer.step()
+            schedule.step()
+            value = float(total.detach())
+            model.history.append(value)
+            if bar.update(step, value, pde=float(pde.detach()), boundary=float(zero.detach())):
+                break
 
 
 def _refit_last_layer(model: RedistancedSDF, x: torch.Tensor, d: torch.Tensor, ridge: float = 1e-8) -> None:

@@ -87,6 +87,13 @@ BAD = [
     ],
     *[("redistance", lambda v=v: call_redistance(width=v), "width", v, ValueError) for v in (0, 2.5)],
     ("redistance", lambda: call_redistance(depth=0), "depth", 0, ValueError),
+    ("redistance", lambda: call_redistance(mode="fast"), "mode", "fast", ValueError),
+    *[
+        ("redistance", lambda v=v: call_redistance(mode="paper", boundary=v), "boundary", v, ValueError)
+        for v in (-1.0, NAN)
+    ],
+    ("redistance", lambda: call_redistance(mode="paper", supervised=1.0), "supervised", 1.0, ValueError),
+    ("redistance", lambda: call_redistance(normal=1.0), "normal", 1.0, ValueError),  # a paper-mode weight
     ("redistance", lambda: call_redistance(activation="relu6"), "activation", "relu6", ValueError),
     *[
         ("redistance", lambda v=v: call_redistance(surface_resolution=v), "surface_resolution", v, ValueError)
@@ -246,8 +253,8 @@ def test_redistance_edge_values_train():
     start = RedistancedSDF(ball, BOUNDS, last_activation="leaky_relu", seed=0, dtype=torch.float64)
     moved = max(float((a - b).abs().max()) for a, b in zip(net.state_dict().values(), start.state_dict().values()))
     assert 0 < moved <= 2 * 0.1 / math.sqrt(0.001) * lr
-    # the p-Poisson energy with p just above 1; fourier features; unsupervised
-    model = call_redistance(loss="p-poisson", p=1.5, fourier_features=2, supervised=0.0, eikonal=1.0)
+    # the p-Poisson energy with p just above 1; fourier features; the paper mode (no distance labels)
+    model = call_redistance(loss="p-poisson", p=1.5, fourier_features=2, mode="paper")
     assert len(model.history) == 2 and all(math.isfinite(v) for v in model.history)
 
 

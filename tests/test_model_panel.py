@@ -83,7 +83,6 @@ def test_every_template_builds_and_shows_a_surface():
 def test_run_opens_the_model_in_every_panel_with_its_sliders():
     w = workbench.app(
         backend="image",
-        eager=True,
         Shape={"resolution": 24, "threaded": False},
         Model={"namespace": {}, "preview": {"resolution": 24, "threaded": False}},
         Curvature={"resolution": 24, "threaded": False},
@@ -91,17 +90,22 @@ def test_run_opens_the_model_in_every_panel_with_its_sliders():
         Fitting={"n_points": 100, "resolution": 24},
     )
     try:
+        for title in ("Model", "Curvature", "Redistancing", "Fitting"):  # built before the run; Slices after
+            w.panel(title)
         editor = w.panels["Model"]
         editor.editor.value = BALL  # as typed
         editor.run_button.click()
         assert "student_ball" in editor.status.value and not editor.error.value
+        assert "opened in Shape, Curvature, Redistancing, Fitting" in editor.status.value
         shape = w.panels["Shape"]
         assert shape.model.__name__ == "student_ball" and shape.choice.value == "student_ball"
+        slices = w.panel("Slices")  # a tab opened after the run opens the model too
+        slices.fields.value = ("f",)  # (one plot per draw from here: quicker)
         for title in ("Curvature", "Slices", "Redistancing", "Fitting"):
             panel = w.panels[title]
             assert panel.model_choice.value == "student_ball", title
             assert panel.model.__name__ == "student_ball", title
-        assert "opened in Shape, Curvature, Slices, Redistancing, Fitting" in editor.status.value
+            assert "fig1_part" in panel.model_choice.options, title  # the paper's shapes stay offered
         # one slider per Param, with its range, default and label
         for sliders in (shape.sliders, editor.shape.sliders):
             assert list(sliders) == ["r", "h"]

@@ -37,3 +37,5 @@ def test_readme_blocks_run_in_order(tmp_path, monkeypatch):
     # the compiled Fig. 1 part meshes to the eager program's mesh (block 0)
     assert ns["fast_mesh"].n_faces == 104_656 and ns["fast"].failure is None
     assert ns["fast_mesh"].volume() == pytest.approx(0.9868, abs=5e-5)
+    # push-pull: the hole's radius follows the pulled wall
+    assert ns["pulled"].change["r"] == pytest.approx(-0.05, abs=1e-6) and ns["pulled"].converged

@@ -74,12 +74,20 @@ def external():
 
 
 @pytest.fixture(scope="module")
-def page(voila_url, external):
+def console():
+    """Console errors and HTTP error responses of the page, from its first request on."""
+    return []
+
+
+@pytest.fixture(scope="module")
+def page(voila_url, external, console):
     with playwright_api.sync_playwright() as p:
         browser = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
         try:
-            pg = browser.new_page(viewport={"width": 1500, "height": 1000})
+            pg = browser.new_page(viewport={"width": 1500, "height": 1000}, accept_downloads=True)
             record_external(pg, external)
+            pg.on("console", lambda m: console.append(f"console {m.type}: {m.text}") if m.type == "error" else None)
+            pg.on("response", lambda r: console.append(f"HTTP {r.status} {r.url}") if r.status >= 400 else None)
             pg.goto(voila_url, wait_until="domcontentloaded", timeout=120_000)  # "load" may never fire
             pg.wait_for_selector(".widget-slider", timeout=240_000)
             yield pg
@@ -231,7 +239,96 @@ def test_model_typed_in_the_editor_opens_in_the_shape_view(page):
     bad = panel.locator(".pyfrep-gutter .bad")
     bad.wait_for(timeout=60_000)
     assert bad.inner_text() == "7"  # the return line, whose parenthesis is never closed
+    page.screenshot(path=str(ARTIFACTS / "model_error.png"))
     assert "line 7" in panel.inner_text()
+
+
+def select_model(pg, name: str) -> None:
+    """Choose ``name`` in the visible tab's model menu."""
+    menu = pg.locator("select:visible").filter(has=pg.locator(f"option[value='{name}']")).first
+    menu.select_option(name)
+
+
+def test_the_page_opens_with_a_short_intro_help_and_no_console_errors(page, console):
+    page.get_by_role("tab", name="Shape").click()
+    tabs = page.locator(".lm-TabBar-tab, .p-TabBar-tab").first.bounding_box()
+    assert tabs["y"] < 200, f"the tabs start {tabs['y']:.0f} px down the page"  # was 280 px of intro
+    assert "8866" not in page.locator("body").inner_text()  # the port is the browser's business
+    help_text = page.locator(".pyfrep-help:visible").first.inner_text()
+    assert help_text.startswith("What am I looking at?") and "Fig. 1" in help_text
+    # no broken-image icons: every image shown has a picture
+    empty = page.evaluate(
+        "[...document.querySelectorAll('img')].filter(i => i.offsetParent !== null && i.naturalWidth === 0).length"
+    )
+    assert empty == 0
+    # no shared-module error from jupyter-server-proxy's lab extension, no 405 from trame's /paraview/
+    (ARTIFACTS / "console_errors.txt").write_text("\n".join(console) + "\n")
+    assert console == []
+
+
+def test_export_is_a_browser_download_and_the_page_stays_connected(page):
+    page.get_by_role("tab", name="Shape").click()
+    select_model(page, "fig1_part")
+    page.wait_for_function("document.body.innerText.includes('r = 0.5')", timeout=240_000)
+    page.locator("select:visible").filter(has=page.locator("option[value='ply']")).first.select_option("ply")
+    page.get_by_role("button", name="Export").click()
+    link = page.locator("a.pyfrep-download:visible")
+    link.wait_for(timeout=120_000)
+    assert "data:" not in (link.get_attribute("href") or "")
+    with page.expect_download(timeout=120_000) as info:
+        link.click()
+    saved = ARTIFACTS / info.value.suggested_filename
+    info.value.save_as(str(saved))
+    from pyfrep_core import load_mesh
+
+    mesh = load_mesh(str(saved))
+    assert saved.name == "fig1_part.ply" and mesh.n_faces > 1000
+    np.testing.assert_allclose(np.abs(mesh.vertices).max(), 1.0, atol=0.02)  # the unit sphere's extent
+    git = subprocess.run(["git", "status", "--porcelain", "--", "notebooks"], cwd=ROOT, capture_output=True, text=True)
+    assert ".ply" not in git.stdout and ".stl" not in git.stdout  # nothing written into the repository
+    # the page is still the app, connected to its kernel: a slider move still remeshes
+    handle = page.locator(".widget-slider:visible .noUi-handle").first
+    handle.focus()
+    page.keyboard.press("ArrowRight")
+    page.wait_for_function("document.body.innerText.includes('r = 0.502')", timeout=240_000)
+    assert page.locator("text=Connection closed").count() == 0
+
+
+def test_redistancing_stop_stops_and_says_where(page):
+    page.get_by_role("tab", name="Redistancing").click()
+    train = page.get_by_role("button", name="Train")
+    train.wait_for(timeout=240_000)
+    train.click()
+    page.wait_for_selector(".train-progress", timeout=240_000)
+    page.get_by_role("button", name="Stop").click()
+    page.wait_for_selector(".train-done", timeout=300_000)
+    time.sleep(3.0)  # a late answer to the click would land now
+    done = page.locator(".train-done").inner_text()
+    progress = page.locator(".train-progress").inner_text()
+    page.screenshot(path=str(ARTIFACTS / "redistancing_stopped.png"))
+    step, total = (int(v) for v in re.search(r"(\d+)/(\d+)", progress).groups())
+    assert "stopping" not in page.locator("body").inner_text()
+    if step < total:
+        assert f"stopped early at step {step}" in done, (done, progress)
+    else:  # training ended before the click arrived: then it must not claim to have stopped
+        assert "stopped" not in done, (done, progress)
+
+
+def test_the_microstructure_opens_cut_with_whole_slider_labels(page):
+    page.get_by_role("tab", name="Shape").click()
+    select_model(page, "microstructure")
+    page.wait_for_function("document.body.innerText.includes('slab threshold at the centre')", timeout=120_000)
+    labels = page.locator(".widget-slider:visible .widget-label")
+    texts = [labels.nth(i).inner_text() for i in range(labels.count())]
+    assert "slab threshold near the shell" in texts and "slab threshold at the centre" in texts
+    cut = page.evaluate(
+        "[...document.querySelectorAll('.widget-slider .widget-label')].filter(l => l.offsetParent !== null"
+        " && l.scrollWidth > l.clientWidth + 1).map(l => l.textContent)"
+    )
+    assert cut == [], f"labels cut: {cut}"
+    section = page.get_by_role("checkbox", name="section")
+    assert section.first.is_checked()  # a lattice opens with its section on
+    page.screenshot(path=str(ARTIFACTS / "microstructure.png"))
 
 
 def test_nothing_is_fetched_from_the_internet(page, external):

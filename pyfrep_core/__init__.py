@@ -27,7 +27,7 @@ from .curvature import Curvatures, attach_curvatures, curvatures, gaussian_curva
 from .diff import div, grad, hessian, laplacian, p_laplacian, param_grad, project_to_surface, value_and_grad
 from .distance import distance_error, fmm_distance, surface_distance, true_distance
 from .field_io import save_field
-from .fitting import FitResult, fit
+from .fitting import FitResult, IdentifiabilityWarning, fit
 from .freeform import FreeformModel, fit_freeform
 from .interval import IntervalUnsupported, bounds
 from .io import load_mesh, load_points, save_mesh, save_points
@@ -40,6 +40,7 @@ from .operations import *  # noqa: F403
 from .operations import __all__ as _operations_all
 from .periodic import *  # noqa: F403
 from .periodic import __all__ as _periodic_all
+from .pose import initial_pose, posed
 from .primitives import *  # noqa: F403
 from .primitives import __all__ as _primitives_all
 from .progress import Event, Progress
@@ -54,6 +55,7 @@ __all__ = [
     "Curvatures",
     "Event",
     "FitResult",
+    "IdentifiabilityWarning",
     "FreeformModel",
     "IntervalUnsupported",
     "Mesh",
@@ -68,6 +70,7 @@ __all__ = [
     "distance_error",
     "div",
     "fit",
+    "initial_pose",
     "fit_freeform",
     "fmm_distance",
     "gaussian_curvature",
@@ -86,6 +89,7 @@ __all__ = [
     "p_laplacian",
     "param_grad",
     "polygonize",
+    "posed",
     "project_to_surface",
     "redistance",
     "sample_surface",

@@ -65,7 +65,7 @@ __all__ = ["FitResult", "IdentifiabilityWarning", "fit", "fit_error"]
 
 STAGES = ("evolution", "sgd", "polish")
 IRLS_ROUNDS = 12  # reweighting rounds of a robust polish at most (the weights settle in 3-6)
-IRLS_TOL = 1e-7  # rounds stop when no parameter moves more than this fraction of its range
+IRLS_TOL = 1e-5  # rounds stop when no parameter moves more than this fraction of its range (far below an SE)
 RANK_RTOL = 1e-9  # singular values of the column-scaled Jacobian below this fraction of the largest are 0
 POSE_SPREAD = 0.02  # std of a pose population around its start, in the unit box
 POSE_STEP = 0.1  # a pose mutation's size relative to a shape mutation's

@@ -235,7 +235,7 @@ def dual_contouring_table(runs: int) -> None:
             figures[method] = seconds
             err = f"volume error {volume - exact:+.1e}" if exact is not None else f"volume {volume:.4f}"
             line.append(
-                f"{method} {seconds:7.3f} s {faces:9d} triangles {err} self-int. faces {flagged} {mib:6.0f} MiB"
+                f"{method} {seconds:7.3f} s {faces:9d} triangles {err} self-intersecting pairs {flagged} {mib:6.0f} MiB"
             )
         ratio = f"  mc / dc = {figures['mc'] / figures['dc']:.2f}x" if len(figures) == 2 else ""
         print(f"  {case:>14} {n:4d}^3  " + "\n                         ".join(line) + ratio)

@@ -151,7 +151,7 @@ def dual_contour(
     resolution : samples per axis of the equivalent dense grid (cells: resolution - 1).
     dtype : dtype of the node samples (classes f > 0 / f <= 0); roots, normals and vertices are float64.
     device : where f is evaluated.
-    tol : step length (length units) at which an edge's root is accepted; None: 1e-9 cells.
+    tol : step length (length units) at which an edge's root is accepted; None: 1e-7 cells.
     block : cells per leaf block of the octree (the finest interval test).
     progress : ``progress(n)`` gives the :class:`pyfrep_core.progress.Progress` of the n chunks of
         samples (:func:`pyfrep_core.polygonize` builds it from its callback, stop and progress);
@@ -205,7 +205,7 @@ def _hermite(
     with np.errstate(divide="ignore", invalid="ignore"):
         c = s.f0 / (s.f0 - s.f1)  # marching cubes' linear interpolation
     c = np.where(np.isfinite(c), np.clip(c, 0.0, 1.0), 0.5)
-    step_tol = 1e-9 * float(spacing.min()) if tol is None else float(tol)
+    step_tol = 1e-7 * float(spacing.min()) if tol is None else float(tol)
     slope = s.f1 - s.f0
     root, rest, c_rest = _bracketed_roots(f, start, start_axis, h, s.edge_axis, c, slope, s.f0, s.f1, step_tol, device)
     root[rest] = c_rest  # not converged in max_iter steps (a grazing edge): the best estimate
@@ -258,18 +258,24 @@ def _contour(
         found &= comp >= 0
         vert[found, q] = first_vertex[pos[found]] + comp[found]
     # QEF per vertex from its edges: A^T A (6 entries), A^T b, mass point
-    inc_edge, inc_q = np.nonzero(vert >= 0)
-    inc_vert = vert[inc_edge, inc_q]
-    n, p = normal[inc_edge], points[inc_edge]
-    d = np.einsum("ij,ij->i", n, p)
+    # per edge: the products once (E values each), added to the vertex of each of its four cells
+    d = np.einsum("ij,ij->i", normal, points)
     pairs = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
-    ata = np.zeros((n_vert, 3, 3))
-    for i, j in pairs:
-        ata[:, i, j] = np.bincount(inc_vert, weights=n[:, i] * n[:, j], minlength=n_vert)
-        ata[:, j, i] = ata[:, i, j]
-    atb = np.stack([np.bincount(inc_vert, weights=n[:, i] * d, minlength=n_vert) for i in range(3)], axis=1)
-    count = np.bincount(inc_vert, minlength=n_vert).astype(np.float64)
-    mass = np.stack([np.bincount(inc_vert, weights=p[:, i], minlength=n_vert) for i in range(3)], axis=1)
+    terms = [normal[:, i] * normal[:, j] for i, j in pairs] + [normal[:, i] * d for i in range(3)]
+    terms += [points[:, i] for i in range(3)] + [np.ones(len(d))]
+    sums = np.zeros((len(terms), n_vert))
+    for q in range(4):
+        has = np.flatnonzero(vert[:, q] >= 0)
+        target = vert[has, q]
+        for k, term in enumerate(terms):
+            sums[k] += np.bincount(target, weights=term[has], minlength=n_vert)
+    ata = np.empty((n_vert, 3, 3))
+    for k, (i, j) in enumerate(pairs):
+        ata[:, i, j] = ata[:, j, i] = sums[k]
+    atb = sums[6:9].T.copy()
+    mass = sums[9:12].T.copy()
+    count = sums[12]
+    del sums, terms
     mass /= np.maximum(count, 1.0)[:, None]
     # the vertices' cells
     vcell = np.repeat(s.cell, n_comp, axis=0)

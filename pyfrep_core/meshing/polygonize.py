@@ -71,7 +71,7 @@ def polygonize(
     tol : distance to f = 0 (length units) at which a projected vertex is accepted; None (the
         default) is the 100-ulp tolerance above.  A display-grade value (e.g. 1e-3 of a cell,
         as the workbench uses while a slider moves) saves most of the root-finding steps.
-        With ``"dc"``: the step at which an edge's root is accepted (None: 1e-9 cells).
+        With ``"dc"``: the step at which an edge's root is accepted (None: 1e-7 cells).
     method : ``"mc"`` marching cubes (the default); ``"dc"`` octree dual contouring at the same
         voxel size (``resolution`` samples per axis; cells the interval bounds prove free of
         surface are never sampled, sharp edges and corners are reproduced, vertices lie inside

@@ -2,10 +2,11 @@
 
 For the Fig. 1 part, the microstructure of Fig. 8 (over its own box) and a gyroid: seconds for
 :func:`pyfrep_core.interval.bounds` on the n^3 cells (float64 and float32) and for evaluating the
-model at n^3 points (the cells' lower corners), best of several runs in one process; their
+model at n^3 points (the cells' lower corners), least CPU time of several runs in one process; their
 ratio; how many cells are proved empty (bounds of one sign: no surface inside), and, for
 comparison, how many cells hold a sign change at their 8 corners (those must never be proved
-empty).  ``os.getloadavg()`` is printed: timings on a loaded machine are relative.
+empty).  One torch thread, CPU time of this process (both sides alike; steadier than wall time
+on a shared machine); ``os.getloadavg()`` is printed: timings on a loaded machine are relative.
 
 Run: ``.venv/bin/python benchmarks/interval.py`` (PYFREP_QUICK=1: 32^3 only).
 """
@@ -25,13 +26,14 @@ from pyfrep_core.models import fig1_part, microstructure
 QUICK = os.environ.get("PYFREP_QUICK", "") not in ("", "0")
 
 
-def best(fn: Callable, repeats: int = 5) -> float:
+def best(fn: Callable, repeats: int = 9) -> float:
+    """Least CPU seconds of this process over the repeats (steadier than wall time on a shared machine)."""
     fn()
     times = []
     for _ in range(repeats):
-        t0 = time.perf_counter()
+        t0 = time.process_time()
         fn()
-        times.append(time.perf_counter() - t0)
+        times.append(time.process_time() - t0)
     return min(times)
 
 
@@ -42,13 +44,14 @@ def cells(n: int, lo: float, hi: float, dtype: torch.dtype) -> tuple[torch.Tenso
 
 
 def main() -> None:
-    print(f"load {os.getloadavg()}, torch threads {torch.get_num_threads()}")
+    torch.set_num_threads(1)
+    print(f"load {os.getloadavg()}, torch threads {torch.get_num_threads()}; times: CPU seconds")
     cases = [
         ("fig1_part", fig1_part, -1.1, 1.1),
         ("microstructure", microstructure, -10.5, 10.5),
         ("gyroid", lambda x: gyroid(x, alpha=1.0, beta=1.0, gamma=1.0, c=0.0), -1.1, 1.1),
     ]
-    head = ("model", "n", "dtype", "bounds s", "points s", "ratio", "empty", "crossing")
+    head = ("model", "n", "dtype", "bounds", "points", "ratio", "empty", "crossing")
     print("{:16s} {:>4s} {:8s} {:>9s} {:>9s} {:>6s} {:>14s} {:>9s}".format(*head))
     for n in (32,) if QUICK else (32, 64):
         for name, f, lo, hi in cases:

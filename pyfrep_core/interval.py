@@ -55,6 +55,7 @@ import torch
 
 from ._array import as_tensor, validated_inputs
 from .evaluate import budget_points, name_of
+from .model import Model
 
 __all__ = ["IntervalUnsupported", "Interval", "bounds", "supports"]
 
@@ -756,26 +757,32 @@ def _holds_point(lo: torch.Tensor, hi: torch.Tensor, phase: float, period: float
     return torch.floor(v + tol) >= torch.ceil(u - tol)
 
 
-def _periodic(fn: Callable, peak: float, trough: float) -> Callable:
+def _periodic(fn: Callable, peak: float) -> Callable:
+    """sin or cos: their values at the ends, and +1 (-1) where a peak (a trough, half a period
+    after it) may lie inside; the extremes are tested erring towards "inside"."""
     tau = 2 * math.pi
 
     def rule(a: Interval) -> Interval:
         lo, hi = a.lo, a.hi
         fl, fh = fn(lo), fn(hi)
         low, high = torch.minimum(fl, fh), torch.maximum(fl, fh)
-        # -1 (+1) where a trough (peak) may lie inside; blended arithmetically (torch.where is slow
-        # on the CPU), the rounding of the blend being covered by the widening below
-        down, up = _holds_point(lo, hi, trough, tau).to(lo.dtype), _holds_point(lo, hi, peak, tau).to(lo.dtype)
-        low = torch.addcmul(low, down, low + 1.0, value=-1)
-        high = torch.addcmul(high, up, 1.0 - high)
-        out = _widen(low, high, scale=torch.ones_like(low))  # absolute error of sin, cos: a few eps
-        return _exact(torch.clamp(out.lo, min=-1.0), torch.clamp(out.hi, max=1.0))
+        eps = torch.finfo(lo.dtype).eps
+        u, v = lo * (1 / tau) - peak / tau, hi * (1 / tau) - peak / tau  # peaks at the integers
+        tol = (u.abs() + v.abs()).mul_(64 * eps).add_(64 * eps)
+        u, v = u - tol, v + tol
+        up = (torch.floor(v) >= torch.ceil(u)).to(lo.dtype)
+        down = (torch.floor(v + 0.5) >= torch.ceil(u + 0.5)).to(lo.dtype)
+        # blended arithmetically (torch.where is slow on the CPU); the blend's rounding (2 eps)
+        # and sin's and cos's own error (an ulp or two of 1) are covered by the widening
+        low = torch.addcmul(low, down, low + 1.0, value=-1).sub_(TRANSCENDENTAL_ULPS * eps)
+        high = torch.addcmul(high, up, 1.0 - high).add_(TRANSCENDENTAL_ULPS * eps)
+        return _exact(low.clamp_(min=-1.0), high.clamp_(max=1.0))
 
     return rule
 
 
-_rule("sin")(_periodic(torch.sin, math.pi / 2, -math.pi / 2))
-_rule("cos")(_periodic(torch.cos, 0.0, math.pi))
+_rule("sin")(_periodic(torch.sin, math.pi / 2))
+_rule("cos")(_periodic(torch.cos, 0.0))
 
 
 @_rule("tan")
@@ -1228,8 +1235,6 @@ def _boxes(lo: Any, hi: Any) -> tuple[torch.Tensor, torch.Tensor, bool, Any]:
 
 
 def _params(f: Callable, like: torch.Tensor, params: dict) -> dict:
-    from .model import Model
-
     if isinstance(f, Model):
         params = f._resolve(params)
     out = {}
@@ -1251,8 +1256,6 @@ def _params(f: Callable, like: torch.Tensor, params: dict) -> dict:
 
 
 def _evaluate(f: Callable, lo: torch.Tensor, hi: torch.Tensor, params: dict) -> tuple[torch.Tensor, torch.Tensor]:
-    from .model import Model
-
     box = Interval.of(lo, hi)
     fn = f.fn if isinstance(f, Model) else f
     try:
@@ -1337,8 +1340,6 @@ def supports(f: Callable, d: int = 3, **params: Any) -> bool:
     >>> supports(lambda x: sphere(x, r=1.0)), supports(lambda x: torch.sort(x, dim=1).values[:, 0])
     (True, False)
     """
-    from .model import Model
-
     if isinstance(f, Model):
         d = f.dim
     box = torch.full((1, d), 0.25, dtype=torch.float64)

@@ -88,7 +88,7 @@ def stages(resolution: int, runs: int, f_model: Any, sparse: bool) -> dict[str, 
     axes = grid_axes(bounds, resolution)
     spacing = np.array([a[1] - a[0] for a in axes])
     view = MeshView(backend="offscreen", size=(640, 480))
-    view.render = lambda reset_camera=False: None  # noqa: E731  (the frame is timed separately)
+    view.render = lambda **_: None  # noqa: E731  (the frame is timed separately)
     rows: dict[str, list[float]] = {}
     with intra_op_threads(1):  # as polygonize runs
         for k in range(runs + 1):

@@ -477,7 +477,8 @@ class FittingPanel(widgets.VBox):
             else ""
         )
         self.status.value = (
-            f"<span class='fit-done'>fit done in {time.perf_counter() - self._t0:.1f} s{stopped}: "
+            f"<span class='fit-done'>fit done in {time.perf_counter() - self._t0:.1f} s{stopped} "
+            f"on {html.escape(self.data_name)}: "
             f"{html.escape(result.residual)} residual, {html.escape(result.loss_function)} loss, "
             f"{len(result.starts)} start(s); RMS {result.rms:.3g}{unit}, max {result.max_distance:.3g}{unit}; "
             f"{n_out} outliers{found} drawn in red</span><br><small>cloud coloured by the {what}{unit} of the "

@@ -479,6 +479,7 @@ class FittingPanel(widgets.VBox):
         self.status.value = (
             f"<span class='fit-done'>fit done in {time.perf_counter() - self._t0:.1f} s{stopped} "
             f"on {html.escape(self.data_name)}: "
+            f"loss {result.loss:.3e}, stages {', '.join(result.stages)}; "
             f"{html.escape(result.residual)} residual, {html.escape(result.loss_function)} loss, "
             f"{len(result.starts)} start(s); RMS {result.rms:.3g}{unit}, max {result.max_distance:.3g}{unit}; "
             f"{n_out} outliers{found} drawn in red</span><br><small>cloud coloured by the {what}{unit} of the "

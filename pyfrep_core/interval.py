@@ -377,16 +377,19 @@ def _r_function(a: Interval, b: Interval, sign: int) -> Interval | None:
     if not ((f1 is g1 and f2 is g2) or (f1 is g2 and f2 is g1)):
         return None
 
-    def value(x: torch.Tensor, y: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    def value(x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
         rho = torch.sqrt(x * x + y * y + c)
-        return (x + y + rho if sign > 0 else x + y - rho), rho
+        return x + y + rho if sign > 0 else x + y - rho
 
-    (lo, rlo), (hi, rhi) = value(f1.lo, f2.lo), value(f1.hi, f2.hi)
-    # the float evaluation's error: a few roundings of terms of size |x| + |y| + rho <= 3 rho.
-    # The exact range lies inside the natural one, which it replaces (an unbounded operand
-    # gives NaN here: unknown, made infinite at the end)
-    err = 12.0 * torch.finfo(lo.dtype).eps
-    return _out1(lo - err * rlo, hi + err * rhi)
+    lo, hi = value(f1.lo, f2.lo), value(f1.hi, f2.hi)
+    # The exact range lies inside the natural one, which it replaces (an unbounded operand gives
+    # NaN here: unknown, made infinite at the end).  Rounding: the float evaluation at any point
+    # of the box (and at the corners) is within a few roundings of terms of size |f1| + |f2| +
+    # rho <= 2 (|f1| + |f2|) + sqrt(c) of the exact value: widened by 24 eps (M1 + M2 + sqrt(c)),
+    # M the operands' largest magnitudes over the box
+    m1, m2 = torch.maximum(f1.lo.abs(), f1.hi.abs()), torch.maximum(f2.lo.abs(), f2.hi.abs())
+    err = (m1 + m2 + math.sqrt(c)) * (24.0 * torch.finfo(lo.dtype).eps)
+    return _out1(lo - err, hi + err)
 
 
 def _rsub(a: Any, b: Any, alpha: Any = None) -> Interval:

@@ -66,7 +66,7 @@ def test_part_dimensions_pose_and_outliers_recovered(name):
     print(f"\n{name}: {res.timings['total']:.1f} s, rms {res.rms:.4f} mm (noise {sigma:.4f}), {res.termination}")
     assert res.residual == "geometric" and res.loss_function == "cauchy" and res.units == "mm"
     assert len(res.starts) >= 4 and sum(s["best"] for s in res.starts) == 1
-    # every dimension, and the translation (the part's origin is on its symmetry axes), within 4 standard errors
+    # every dimension, and the translation (the parts' origins lie on their symmetry axes), within 4 standard errors
     for k in [*truth, "tx", "ty", "tz"]:
         value = truth.get(k, data["pose"].get(k))
         z = (res.params[k] - value) / res.std_errors[k]

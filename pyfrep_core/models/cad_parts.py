@@ -2,8 +2,8 @@
 
 Each is written with the exact distance functions of :mod:`pyfrep_core.sdf` (``f > 0`` inside,
 ``|grad f| = 1`` on the faces) joined by min/max, as a CAD program would build it, and declares
-4 to 6 dimensions with a range around a nominal size.  Each part sits in its own frame: the origin
-near its centre, its main axis along z.  ``TRUTH`` holds one set of dimensions inside the declared
+4 to 6 dimensions with a range around a nominal size.  Each part sits in its own frame, its main axis
+along z, the origin at its centre or on a datum face.  ``TRUTH`` holds one set of dimensions inside the declared
 ranges and away from their defaults (what a fit should recover); ``SIZE`` each part's largest
 extent (mm), the scale of its noise.  :func:`scan` makes the synthetic measurement the tests, the
 benchmark and the lessons fit: surface points in a random pose, noise and stray points.
@@ -17,7 +17,7 @@ benchmark and the lessons fit: surface points in a random pose, noise and stray 
 >>> import torch
 >>> sorted(PARTS)
 ['bearing_ring', 'flanged_bushing', 'hex_nut', 'l_bracket']
->>> bool(flanged_bushing(torch.tensor([[11.0, 0.0, 0.0]]))[0] > 0)   # in the tube's wall
+>>> bool(flanged_bushing(torch.tensor([[11.0, 0.0, 20.0]]))[0] > 0)   # in the tube's wall
 True
 """
 
@@ -47,7 +47,7 @@ def _radius(x: torch.Tensor) -> torch.Tensor:
 
 
 @model(
-    bounds=((-35.0, -35.0, -25.0), (35.0, 35.0, 25.0)),
+    bounds=((-35.0, -35.0, -5.0), (35.0, 35.0, 50.0)),
     bore=Param(8.0, 5.0, 10.0, label="bore radius (mm)"),
     outer=Param(12.0, 10.5, 15.0, label="tube outer radius (mm)"),
     flange=Param(22.0, 17.0, 28.0, label="flange radius (mm)"),
@@ -55,18 +55,19 @@ def _radius(x: torch.Tensor) -> torch.Tensor:
     length=Param(36.0, 28.0, 44.0, label="overall length (mm)"),
 )
 def flanged_bushing(x, bore, outer, flange, flange_t, length):
-    """A flanged bushing: a tube of ``outer`` radius and ``length`` along z (centred on 0), a
-    flange of radius ``flange`` and thickness ``flange_t`` at its lower end, a through ``bore``.
+    """A flanged bushing: a tube of ``outer`` radius and ``length`` along z from its datum, the
+    flange's lower face at z = 0, a flange of radius ``flange`` and thickness ``flange_t``, a
+    through ``bore``.  Each dimension moves one face (as a drawing dimensions a part from a datum).
 
     Examples
     --------
     >>> import torch
-    >>> flanged_bushing(torch.tensor([[20.0, 0.0, -16.0], [20.0, 0.0, 0.0]])) > 0   # flange, beside the tube
+    >>> flanged_bushing(torch.tensor([[20.0, 0.0, 2.0], [20.0, 0.0, 20.0]])) > 0   # flange, beside the tube
     tensor([ True, False])
     """
     rho, z = _radius(x), x[:, 2]
-    tube = torch.minimum(outer - rho, _slab(z, length / 2))
-    fl = torch.minimum(flange - rho, _slab(z + length / 2 - flange_t / 2, flange_t / 2))
+    tube = torch.minimum(outer - rho, _slab(z - length / 2, length / 2))
+    fl = torch.minimum(flange - rho, _slab(z - flange_t / 2, flange_t / 2))
     return sdf.difference(sdf.union(tube, fl), bore - rho)
 
 

@@ -1318,6 +1318,9 @@ def bounds(f: Callable, lo: Any, hi: Any, chunk: int | None = None, **params: An
     (True, True)
     """
     tl, th, was_numpy, dtype = _boxes(lo, hi)
+    if isinstance(f, Model) and tl.shape[1] != f.dim:
+        shape = tuple(tl.shape)
+        raise ValueError(f"bounds: {f.__name__} takes points of {f.dim} coordinates, got boxes of shape {shape}")
     p = _params(f, tl, params)
     n, d = tl.shape
     size = chunk if chunk is not None else max(1, budget_points(tl.dtype, d) // INTERVAL_VALUES)

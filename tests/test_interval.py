@@ -344,6 +344,8 @@ def test_bad_boxes_are_refused():
         bounds(P.sphere, lo, torch.ones(3, 3))
     with pytest.raises(ValueError, match="finite"):
         bounds(P.sphere, lo, torch.full((2, 3), math.inf))
+    with pytest.raises(ValueError, match="takes points of 2 coordinates"):
+        bounds(models.ellipse, lo, lo + 1.0)
     with pytest.raises(TypeError, match="float32 or float64"):
         bounds(P.sphere, np.zeros((2, 3), np.int64), np.ones((2, 3), np.int64))
 

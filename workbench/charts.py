@@ -136,13 +136,13 @@ class LineChart:
         if self.logy and any(series.values()):
             ax.set_yscale("log")
         if series:
-            ax.legend(fontsize=7, loc="best")
+            ax.legend(fontsize=10, loc="best")
         else:
             ax.text(0.5, 0.5, "no data yet", ha="center", va="center", transform=ax.transAxes, color="0.5")
-        ax.set_title(self.title, fontsize=10)
-        ax.set_xlabel(self.xlabel, fontsize=8)
-        ax.set_ylabel(self.ylabel, fontsize=8)
-        ax.tick_params(labelsize=7)
+        ax.set_title(self.title, fontsize=11)
+        ax.set_xlabel(self.xlabel, fontsize=10)
+        ax.set_ylabel(self.ylabel, fontsize=10)
+        ax.tick_params(labelsize=10)
         ax.grid(alpha=0.3)
         self.widget.value = figure_png(fig)
         self.draws += 1

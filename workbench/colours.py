@@ -27,6 +27,7 @@ __all__ = ["DIVERGING", "SEQUENTIAL", "UNDEFINED_COLOUR", "ColourRange", "colour
 DIVERGING = "RdBu_r"  # red > 0, blue < 0, white exactly 0
 SEQUENTIAL = "viridis"  # one-signed quantities: dark = low, yellow = high
 UNDEFINED_COLOUR = "#9a9a9a"  # neutral grey, outside both maps
+SIGN_TOLERANCE = 0.01  # a range whose minority sign is this small a fraction of the other is one-signed
 
 
 @dataclass(frozen=True)
@@ -87,7 +88,8 @@ def colour_range(
         (e.g. ``Curvatures.defined``).
     percentiles : lower and upper percentile of the defined values bounding the range.
     diverging : force (True) or forbid (False) a diverging map centred on 0; None decides by
-        sign: one-sided when the range's two percentiles have the same sign (or one is 0).
+        sign: one-sided when the range's two percentiles have the same sign, or one is under
+        :data:`SIGN_TOLERANCE` times the other in size (then the range starts at 0).
 
     Returns
     -------
@@ -118,6 +120,12 @@ def colour_range(
 
     >>> colour_range(np.r_[np.zeros(98), 1.0, -3.0]).clim
     (-3.0, 3.0)
+
+    A sliver of the other sign (1e-4 against 1) does not make a quantity two-signed:
+
+    >>> r = colour_range(np.r_[-1e-4, np.linspace(0.0, 1.0, 100)], percentiles=(0, 100))
+    >>> r.cmap, r.clim, round(r.clipped, 4)
+    ('viridis', (0.0, 1.0), 0.0099)
     """
     values = np.asarray(values, dtype=np.float64)
     ok = np.isfinite(values)
@@ -139,12 +147,17 @@ def colour_range(
     if not hi > lo:  # most values equal (a parameter moving a small part of a surface): all of them
         lo, hi = float(good.min()), float(good.max())
     if diverging is None:
-        diverging = lo < 0.0 < hi
+        # one-signed up to a sliver: values of the minority sign under 1 % of the majority's size
+        # are rounding or vertices next to a crease (K of the Fig. 1 part is >= 0 on every piece)
+        diverging = lo < 0.0 < hi and min(-lo, hi) > SIGN_TOLERANCE * max(-lo, hi)
+        if not diverging and lo < 0.0 < hi:
+            lo, hi = (0.0, hi) if hi > -lo else (lo, 0.0)
     if diverging:
         top = max(abs(lo), abs(hi))
         lo, hi = -top, top
     if not hi > lo:  # a constant: a small range around it, so the colour bar can be drawn
         pad = max(abs(lo), 1.0) * 1e-9
         lo, hi = lo - pad, hi + pad
-    clipped = float(np.mean((good < lo) | (good > hi)))
+    slack = 1e-9 * max(abs(lo), abs(hi))  # rounding (K = -1e-17 on a plane) is not clipping
+    clipped = float(np.mean((good < lo - slack) | (good > hi + slack)))
     return ColourRange(lo, hi, DIVERGING if diverging else SEQUENTIAL, bool(diverging), clipped, undefined, total)

@@ -1,12 +1,13 @@
 """Curvature panel: the surface coloured by mean, Gaussian or principal curvature, with a histogram.
 
-The paper's Fig. 3 (Schwarz D).  Curvatures come from ``pyfrep_core.curvature.curvatures``
+The paper's Fig. 5 (Schwarz D).  Curvatures come from ``pyfrep_core.curvature.curvatures``
 (autograd Hessians of f at the mesh vertices, after they are projected onto f = 0); the panel
-only meshes, asks for them and draws.  Where a curvature is undefined (grad f = 0, creases:
-``Curvatures.defined``) the surface is grey and the status counts the vertices; the colour range
-is chosen percentiles of the other values (a few huge values next to sharp edges do not wash out
-the map), on a diverging map centred on 0 for a quantity of both signs and a one-sided map for a
-one-signed one (the Gaussian curvature of Schwarz D is <= 0 everywhere).
+only meshes, asks for them and draws.  Where a curvature is
+undefined (grad f = 0, creases: ``Curvatures.defined``) or its radius is under half the grid
+spacing (next to a crease, or a strut thinner than the mesh) the surface is grey and the status
+counts the vertices; the colour range is chosen percentiles of the other values, on a diverging
+map centred on 0 for a quantity of both signs and a one-sided map for a one-signed one (the
+Gaussian curvature of Schwarz D is <= 0 everywhere).
 """
 
 from __future__ import annotations
@@ -93,7 +94,7 @@ class CurvaturePanel(widgets.VBox):
             description="colour",
             tooltips=[EQUATIONS[k] for k in QUANTITIES.values()],
         )
-        self.quantity.style.button_width = "80px"
+        self.quantity.style.button_width = "96px"
         self.clip = widgets.FloatRangeSlider(
             value=(2.0, 98.0),
             min=0.0,
@@ -141,6 +142,9 @@ class CurvaturePanel(widgets.VBox):
         t0 = time.perf_counter()
         model = job["model"]
         f = lambda x: model(x)  # noqa: E731  (defaults of the declared parameters)
+        # marching cubes, vertices moved onto f = 0 (the paper's way): the curvatures are those of
+        # the surface itself.  Dual contouring keeps creases straight, but most of its vertices lie
+        # off f = 0 (|f| ~ 1e-2 cell), where the level set is another (H = +-0.05 on Schwarz D)
         mesh = polygonize(f, model.bounds, job["resolution"])
         table = curvature_table(f, mesh.vertices)
         return {"mesh": mesh, "table": table, "seconds": time.perf_counter() - t0}
@@ -213,7 +217,8 @@ class CurvaturePanel(widgets.VBox):
         centres = 0.5 * (edges[1:] + edges[:-1])
         cmap = colormaps[span.cmap]
         colours = cmap((centres - span.lo) / (span.hi - span.lo))
-        ax.bar(centres, counts, width=np.diff(edges), color=colours, edgecolor="none")
+        # a thin dark edge: the bars at 0 of a diverging map are white
+        ax.bar(centres, counts, width=np.diff(edges), color=colours, edgecolor="0.35", linewidth=0.3)
         if span.lo < 0.0 < span.hi:
             ax.axvline(0.0, color="k", lw=0.8)
         ax.set_title(

@@ -94,9 +94,15 @@ class Downloads:
         name = os.path.basename(path)
         size = os.path.getsize(path)
         label = text or f"download {name}"
+        url = self.url(path)
+        # opened in a hidden frame of its own: navigating the page itself (even to a file it then
+        # saves) fires its beforeunload, where Voila shuts the kernel down and the views disconnect
+        frame = "pyfrep-download-" + url.rsplit("/", 2)[-2]
         return (
-            f"<a class='pyfrep-download' href='{html.escape(self.url(path))}' download='{html.escape(name)}'>"
+            f"<a class='pyfrep-download' href='{html.escape(url)}' target='{frame}' "
+            f"download='{html.escape(name)}' style='color:#0645ad;text-decoration:underline'>"
             f"{html.escape(label)}</a> ({_size(size)})"
+            f"<iframe name='{frame}' title='download' style='display:none'></iframe>"
         )
 
     # -- server -----------------------------------------------------------------------------------

@@ -139,8 +139,12 @@ def slice_figure(
     cols = max(1, min(columns, len(names)))
     blocks = -(-len(names) // cols)  # rows of fields; each with a row of errors under it
     per = 2 if truth is not None else 1
-    fig = new_figure(3.5 * cols, 3.1 * blocks * per + 0.2, dpi=80)
     u, v = axes_uv
+    # each plot as tall as the plane's aspect asks (the ellipse's box is 2.5 times wider than tall),
+    # plus its title and tick labels
+    aspect = float(np.ptp(v) / np.ptp(u)) if np.ptp(u) > 0 else 1.0
+    height = 2.7 * min(max(aspect, 0.3), 1.5) + 1.3
+    fig = new_figure(3.8 * cols, height * blocks * per + 0.2, dpi=80)
 
     def panel(row: int, col: int) -> Any:
         ax = fig.add_subplot(blocks * per, cols, row * cols + col + 1)
@@ -152,7 +156,7 @@ def slice_figure(
     def contour(ax: Any, z: np.ndarray, span: Any, unit: str) -> None:
         levels = np.linspace(span.lo, span.hi, 22)
         cs = ax.contourf(u, v, np.clip(z, span.lo, span.hi), levels=levels, cmap=span.cmap)
-        bar = fig.colorbar(cs, ax=ax, shrink=0.85, ticks=np.linspace(span.lo, span.hi, 5))
+        bar = fig.colorbar(cs, ax=ax, shrink=0.9, ticks=np.linspace(span.lo, span.hi, 5), format="%.3g")
         bar.ax.tick_params(labelsize=FONT)
         bar.set_label(unit, fontsize=FONT)
 
@@ -179,7 +183,7 @@ def slice_figure(
             contour(ax, err, span, "length")
             ax.contour(u, v, truth, levels=[0.0], colors="w", linewidths=1.2)
             ax.set_title(
-                f"|{name} - d|: mean {np.nanmean(err):.2g}, max {np.nanmax(err):.2g}\n{caption(span)}",
+                f"|{name} - d|\nmean {np.nanmean(err):.2g}, max {np.nanmax(err):.2g}; {caption(span)}",
                 fontsize=FONT,
             )
     return fig

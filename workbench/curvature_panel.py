@@ -125,7 +125,7 @@ class CurvaturePanel(widgets.VBox):
         return self.models[self.model_choice.value]
 
     def _model_changed(self) -> None:
-        self.view.set_section(on=shows_inside(self.model))  # a lattice opens, a solid closes
+        self.view.set_section(on=shows_inside(self.model), render=False)  # a lattice opens, a solid closes
         self.request()
 
     def request(self) -> None:

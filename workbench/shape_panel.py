@@ -287,7 +287,7 @@ class ShapePanel(widgets.VBox):
         self.last_moved = model.names[0] if model.names else None
         self._make_sliders(model)
         self._bounds_value = check_bounds(bounds if bounds is not None else model.bounds, 3)
-        self.view.set_section(on=shows_inside(model))  # a lattice opens, a solid closes
+        self.view.set_section(on=shows_inside(model), render=False)  # a lattice opens, a solid closes
         self.download.value = ""  # the last export was of the other model
         self._quiet = True
         try:

@@ -223,8 +223,13 @@ class MeshView:
         self._apply_section()
         self.render()
 
-    def set_section(self, on: bool | None = None, axis: str | None = None, at: float | None = None) -> None:
-        """Turn the clip plane on/off, set the axis it cuts ("x", "y", "z") and where (0..1 of the extent)."""
+    def set_section(
+        self, on: bool | None = None, axis: str | None = None, at: float | None = None, render: bool = True
+    ) -> None:
+        """Turn the clip plane on/off, set the axis it cuts ("x", "y", "z") and where (0..1 of the extent).
+
+        ``render=False``: only remember it, for the next :meth:`update` (a new model on its way).
+        """
         self._quiet = True  # one render for the three changes
         try:
             if axis is not None:
@@ -235,7 +240,8 @@ class MeshView:
                 self.section.value = on
         finally:
             self._quiet = False
-        self._section_changed()
+        if render:
+            self._section_changed()
 
     def _apply_section(self) -> None:
         """Clip the surface (and the cloud) at the plane: in the mapper, nothing re-meshed."""

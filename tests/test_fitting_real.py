@@ -177,7 +177,7 @@ def test_posed_model_under_torch_func_matches_differences():
     """The pose parameters are ordinary 0-d parameters: per-point df/dp by the kernel's per-sample
     reverse mode equals central differences, and (B,) parameter sets batch through vmap."""
     m = posed(PARTS["l_bracket"], scale=True)
-    x = torch.as_tensor(clean_surface("l_bracket")[:64]) + 0.3
+    x = torch.tensor(clean_surface("l_bracket")[:64]) + 0.3
     values = {k: torch.tensor(v, dtype=torch.float64) for k, v in m.defaults().items()}
     values.update(rx=torch.tensor(0.4, dtype=torch.float64), rz=torch.tensor(-1.1, dtype=torch.float64))
     jac = _param_jacobian(m.fn, x, values, m.names)

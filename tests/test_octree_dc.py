@@ -203,7 +203,8 @@ def test_pruning_is_certified_and_samples_a_fraction_of_the_grid():
     h = np.array([a[1] - a[0] for a in axes])
     tree = prune(fig1_part, np.array(BOX[0]), h, (n - 1,) * 3, 4)
     assert tree.certified
-    kept_cells = len(tree.blocks) * 4**3
+    b = tree.block  # 4, or 8 where the surface crowds the blocks
+    kept_cells = len(tree.blocks) * b**3
     assert kept_cells < 0.25 * (n - 1) ** 3
     # every cell that dense marching cubes sees the surface in lies in a kept block
     from pyfrep_core.meshing import evaluate_grid
@@ -213,10 +214,10 @@ def test_pruning_is_certified_and_samples_a_fraction_of_the_grid():
     for c in range(1, 8):
         dx, dy, dz = c & 1, c >> 1 & 1, c >> 2 & 1
         mixed |= inside[dx : dx + n - 1, dy : dy + n - 1, dz : dz + n - 1] != inside[:-1, :-1, :-1]
-    kept = np.zeros((-(-(n - 1) // 4),) * 3, dtype=bool)
+    kept = np.zeros((-(-(n - 1) // b),) * 3, dtype=bool)
     kept[tuple(tree.blocks.T)] = True
     cells = np.argwhere(mixed)
-    assert kept[tuple((cells // 4).T)].all()
+    assert kept[tuple((cells // b).T)].all()
 
 
 def distance_to_mesh(points, mesh):

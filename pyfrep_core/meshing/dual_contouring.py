@@ -176,15 +176,16 @@ def dual_contour(
     spacing = np.array([a[1] - a[0] for a in axes])
     cells = tuple(r - 1 for r in res)
     tree = prune(f, lo, spacing, cells, int(block))
+    block = tree.block
     if not tree.certified:
         _check_memory(res, dtype)  # every block is sampled: the dense grid's memory
     n_chunks = -(-len(tree.blocks) // max(1, (1 << 15) // (block + 1) ** 3))
     if progress is None:
-        samples = sample_blocks(f, axes, tree.blocks, int(block), dtype, device) if len(tree.blocks) else None
+        samples = sample_blocks(f, axes, tree.blocks, block, dtype, device) if len(tree.blocks) else None
         stopped = False
     else:
         with progress(max(n_chunks, 1)) as bar:
-            samples = sample_blocks(f, axes, tree.blocks, int(block), dtype, device, bar) if len(tree.blocks) else None
+            samples = sample_blocks(f, axes, tree.blocks, block, dtype, device, bar) if len(tree.blocks) else None
             stopped = bar.stopped
     if stopped:
         return Mesh(np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64), np.zeros((0, 3)))

@@ -39,7 +39,7 @@ class Octree(NamedTuple):
     """The pruning's result.
 
     blocks : (K, 3) int64 leaf blocks kept (index in units of ``block`` cells).
-    block : cells per leaf block edge.
+    block : cells per leaf block edge (the requested size, or twice it where surface is everywhere).
     certified : False when the model has no interval extension (every block is kept then).
     levels : per level, ``(size, origins (B, 3) int64 in cells, kept (B,) bool)`` of the blocks
         tested, coarse to fine (for drawing and counting).
@@ -83,6 +83,7 @@ def prune(
     cells: tuple[int, int, int],
     block: int,
     stop: Any = None,
+    crowded: float | None = 0.5,
 ) -> Octree:
     """Leaf blocks of ``block``^3 cells that may hold surface, by interval bounds from one root block down.
 
@@ -94,6 +95,8 @@ def prune(
     block : leaf block size in cells (>= 1).
     stop : an object with ``is_set()``; checked between levels (then the blocks of the level
         reached are returned, split to leaf size).
+    crowded : when more than this fraction of all the grid's blocks of ``2 block`` cells is kept,
+        they are the leaves (``Octree.block`` says which size came out); None: always split to ``block``.
 
     Returns
     -------
@@ -122,6 +125,10 @@ def prune(
         current = current[keep]
         if size == block or len(current) == 0 or (stop is not None and stop.is_set()):
             break
+        if size == 2 * block and crowded is not None and len(current) > crowded * np.prod(-(-ncells // size)):
+            # surface nearly everywhere (a lattice): the last split would drop few blocks, and
+            # blocks twice as large share fewer nodes with their neighbours ((9/8)^3 vs (5/4)^3)
+            return Octree(current // size, size, True, levels)
         size //= 2
         child = np.array([(i, j, k) for i in (0, 1) for j in (0, 1) for k in (0, 1)], dtype=np.int64) * size
         current = (current[:, None, :] + child[None]).reshape(-1, 3)

@@ -13,7 +13,9 @@ Residual of a point x_i for parameters p:
 Robust losses (``rho`` of the residual u = r / s for a scale s, so that ``rho(u) ~ u^2`` for small
 u and l2 is unchanged): ``"l2"`` u^2; ``"huber"`` u^2 up to c = 1.345, linear beyond; ``"cauchy"``
 ``c^2 log(1 + u^2 / c^2)`` with c = 2.385 (both 95 % efficient for Gaussian noise);
-``"trimmed"`` ``min(u^2, c^2)`` with c = 3 (points beyond 3 s are dropped).  The scale s is the
+``"trimmed"`` ``min(u^2, c^2)`` with c = 3 (points beyond 3 s are dropped).  Huber's pull of a
+stray point does not fade with its distance (c s each), so stray points mostly on one side of a face
+bias it; Cauchy's fades (as 1 / distance) and trimmed's vanishes: prefer those with outliers.  The scale s is the
 noise level: given, or estimated as ``1.4826 * median |r|`` (the median absolute deviation about
 0, consistent for Gaussian noise; half the points may be outliers before it breaks down).  A
 point is an inlier when ``|r| <= 3 s``.  The least-squares weights of iteratively reweighted

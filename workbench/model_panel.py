@@ -275,7 +275,8 @@ class ModelPanel(widgets.VBox):
         at = f" at line {line}" if line is not None else ""
         self._say(f"<span style='color:#b00'><b>error in {html.escape(what)}{at}</b></span>")
         self.error.value = (
-            "<pre style='color:#900;background:#fff3f3;padding:6px;white-space:pre-wrap;max-width:640px'>"
+            "<pre style='color:#900;background:#fff3f3;padding:6px;white-space:pre-wrap;max-width:640px;"
+            "line-height:1.35'>"
             f"{html.escape(message)}</pre>"
         )
         return None

@@ -99,15 +99,9 @@ def self_intersecting_pairs(mesh):
     reach = 4 * np.linalg.norm(mesh.vertices[mesh.faces[:, 0]] - mesh.vertices[mesh.faces[:, 1]], axis=1).max()
     near = np.unique(np.concatenate(cKDTree(centroid).query_ball_point(centroid[flagged], reach)))
     sub = mesh.faces[near]
-    poly = vtk.vtkPolyData()
-    pts = vtk.vtkPoints()
-    for p in mesh.vertices:
-        pts.InsertNextPoint(*p)
-    poly.SetPoints(pts)
-    cells = vtk.vtkCellArray()
-    for t in sub:
-        cells.InsertNextCell(3, [int(i) for i in t])
-    poly.SetPolys(cells)
+    import pyvista as pv
+
+    poly = pv.PolyData(mesh.vertices, np.hstack([np.full((len(sub), 1), 3), sub]).ravel())
     collide = vtk.vtkCollisionDetectionFilter()
     collide.SetInputData(0, poly)
     collide.SetInputData(1, poly)

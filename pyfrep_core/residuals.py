@@ -147,7 +147,7 @@ def slopes(r: torch.Tensor, loss: str, scale: float | torch.Tensor) -> torch.Ten
 
     >>> import torch
     >>> slopes(torch.tensor([0.0, 3.0]), "cauchy", 1.0)
-    tensor([ 1.0000, -0.0883])
+    tensor([ 1.0000, -0.0873])
     """
     c = _check(loss)
     u = r / scale

@@ -734,6 +734,8 @@ def fit(
         bounds the pull of outliers, and ``inliers`` marks the points within 3 scales.
     loss_scale : the noise scale s of a robust loss, in the residual's units; None: estimated
         from the residuals (1.4826 x their median absolute value) and re-estimated as the fit moves.
+        Give it for exact data (a CAD mesh: its vertices lie on the surface, so the median residual
+        is about 0 and every facet point would look like an outlier): the facets' deviation.
     starts : number of starts: pose candidates (when ``pose``) first, then the same with random
         shape parameters; evolution and Adam run for all of them together (one batch of parameter
         sets), the best one is polished; every start is summarized in ``result.starts``.  None:

@@ -90,7 +90,8 @@ def test_a_robust_fit_draws_outliers_apart_and_tabulates_standard_errors(panel):
     assert p.table.value.count("<tr>") == 1 + len(result.params) and "error / s.e." in p.table.value
     assert f"{found.sum()} outliers" in p.status.value and "planted" in p.status.value
     # the progress bar ends full and says so (it stopped at 'polish 3/20' before)
-    assert p.bar.value == p.bar.max and p.bar.description == "done"
+    assert p.bar.value == p.bar.max and p.bar.description == "done" and "polish" in p.progress_text.value
+    assert "done: polish" in p.progress_text.value
 
 
 def test_a_new_model_clears_the_previous_fit_and_the_camera_follows(panel):

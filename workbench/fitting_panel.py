@@ -453,7 +453,8 @@ class FittingPanel(widgets.VBox):
         if inliers is None:
             inliers = np.ones(len(shown), bool)
         unit = f" ({result.units})" if result.units else ""
-        what = "distance |f| / |grad f|" if result.residual == "geometric" else "residual |f|"
+        # no "|" in a VTK caption: its text renderer takes them for markup
+        what = "distance to the fit" if result.residual == "geometric" else "absolute residual f"
         kept = distance[inliers]
         top = float(np.percentile(kept, 99)) if len(kept) else 1.0
         if surface.is_empty():
@@ -466,11 +467,21 @@ class FittingPanel(widgets.VBox):
         self.view.overlay_points(shown[~inliers] if n_out else None, name="outliers", color=OUTLIER_COLOUR)
         self.view.render(reset_camera=surface.is_empty())
         self.table.value = self._table(result)
+        first = "" if self._first_loss is None else f" (first {self._first_loss:.3e})"
+        self.progress_text.value = (  # the last word on the run: no stale 'polish 3/20'
+            f"<span class='fit-progress'>{self.bar.description}: {', '.join(result.stages)} &middot; "
+            f"loss {result.loss:.3e}{first} &middot; {self.loss_chart.n_points} points charted</span>"
+        )
         stopped = " <b>(stopped early)</b>" if result.stopped else ""
         found = ""
         if self.planted is not None and len(self.planted) == len(shown) and self.planted.any():
             hit = int((~inliers & self.planted).sum())
             found = f" ({hit} of the {int(self.planted.sum())} planted)"
+        if n_out > 0.5 * len(shown):
+            found += (
+                " &mdash; most points: the robust noise scale is about 0 (noise-free points?); "
+                "use the l2 loss or give a loss scale"
+            )
         reason = (
             f"<br><small>standard errors: {html.escape(result.std_error_reason)}</small>"
             if result.std_error_reason
@@ -499,7 +510,8 @@ class FittingPanel(widgets.VBox):
         rows = []
         for k, v in result.params.items():
             se = result.std_errors.get(k)
-            se_text = f"{se:.2g}" if se is not None and np.isfinite(se) else "&mdash;"
+            se = se if se is not None and np.isfinite(se) and se > 0 else None
+            se_text = "&mdash;" if se is None else f"{se:.2g}"
             row = f"<tr><td>{html.escape(k)}</td><td>{v:.6g}</td><td>{se_text}</td>"
             if known:
                 if k in truth:

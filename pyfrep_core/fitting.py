@@ -115,7 +115,7 @@ class FitResult:
     loss_scale : the noise scale s of a robust loss (given, or 1.4826 median |r| at the end), in the
         residual's units; None for l2.
     rms, max_distance : root mean square and largest geometric distance |f| / |grad f| over the
-        inliers, in the points' (the model's) units.
+        inliers, in the points' (the model's) units (NaN for a model torch.func cannot differentiate).
     inliers : (N,) bool numpy: |r| <= 3 s for a robust loss, every point for l2.
     outlier_fraction : fraction of the points that are not inliers.
     starts : one dict per start: ``start`` (parameters it began from), ``params`` (where it ended),
@@ -1094,7 +1094,13 @@ def _summarize(prob: _Problem, x: torch.Tensor, params: dict, polished: dict | N
         scale = prob.loss_scale if prob.loss_scale is not None else float(robust_scale(r))
     loss = float(objective(r, prob.loss, scale))
     mask = inliers(r, prob.loss, scale if scale is not None else 1.0).numpy()
-    distance = residuals if signed is not None else fit_error(model, x, params, residual="geometric")
+    if signed is not None:
+        distance = residuals
+    else:
+        try:
+            distance = fit_error(model, x, params, residual="geometric")
+        except RuntimeError:  # a model torch.func cannot differentiate in x (.item() on a point's value)
+            distance = np.full_like(residuals, math.nan)
     kept = distance[mask]
     free = tuple(prob.free)
     standard_errors: dict[str, float] = {}

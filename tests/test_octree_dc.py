@@ -94,24 +94,32 @@ def self_intersecting_pairs(mesh):
     flagged = np.flatnonzero(ms.current_mesh().face_selection_array())
     if len(flagged) == 0:
         return np.zeros((0, 2), dtype=np.int64)
-    # the flagged faces and every face near them, checked pairwise by VTK
-    centroid = mesh.vertices[mesh.faces].mean(axis=1)
-    reach = 4 * np.linalg.norm(mesh.vertices[mesh.faces[:, 0]] - mesh.vertices[mesh.faces[:, 1]], axis=1).max()
-    near = np.unique(np.concatenate(cKDTree(centroid).query_ball_point(centroid[flagged], reach)))
-    sub = mesh.faces[near]
+    # each flagged face against every face that could reach it, by VTK, in batches (bounded memory)
     import pyvista as pv
 
-    poly = pv.PolyData(mesh.vertices, np.hstack([np.full((len(sub), 1), 3), sub]).ravel())
-    collide = vtk.vtkCollisionDetectionFilter()
-    collide.SetInputData(0, poly)
-    collide.SetInputData(1, poly)
-    collide.SetMatrix(0, vtk.vtkMatrix4x4())
-    collide.SetMatrix(1, vtk.vtkMatrix4x4())
-    collide.SetCollisionModeToAllContacts()
-    collide.Update()
-    a, b = (vtk_to_numpy(collide.GetContactCells(i)).astype(np.int64) for i in (0, 1))
-    apart = ~(sub[a][:, :, None] == sub[b][:, None, :]).any(axis=(1, 2))
-    return np.stack([near[a[apart]], near[b[apart]]], axis=1)
+    corners = mesh.vertices[mesh.faces]
+    centroid = corners.mean(axis=1)
+    radius = np.linalg.norm(corners - centroid[:, None], axis=2).max(axis=1)  # faces lie within these balls
+    tree = cKDTree(centroid)
+    found = []
+    for start in range(0, len(flagged), 512):
+        batch = flagged[start : start + 512]
+        near = np.unique(np.concatenate(tree.query_ball_point(centroid[batch], radius[batch] + radius.max())))
+        polys = [
+            pv.PolyData(mesh.vertices, np.hstack([np.full((len(part), 1), 3), mesh.faces[part]]).ravel())
+            for part in (batch, near)
+        ]
+        collide = vtk.vtkCollisionDetectionFilter()
+        for i in (0, 1):
+            collide.SetInputData(i, polys[i])
+            collide.SetMatrix(i, vtk.vtkMatrix4x4())
+        collide.SetCollisionModeToAllContacts()
+        collide.Update()
+        a, b = (vtk_to_numpy(collide.GetContactCells(i)).astype(np.int64) for i in (0, 1))
+        a, b = batch[a], near[b]
+        apart = ~(mesh.faces[a][:, :, None] == mesh.faces[b][:, None, :]).any(axis=(1, 2))
+        found.append(np.sort(np.stack([a[apart], b[apart]], axis=1), axis=1))
+    return np.unique(np.concatenate(found), axis=0)
 
 
 def test_fig1_has_no_self_intersections(fig1_dc):

@@ -93,10 +93,15 @@ def _map_chunks(fn: Callable, x: torch.Tensor, chunk: int | None, parallel: bool
     with validated_inputs():
         if n <= size:
             return fn(x)
-        pieces = [x[i : i + size] for i in range(0, n, size)]
         # not from inside a worker (an f that itself differentiates): waiting on the pool could deadlock
         nested = threading.current_thread().name.startswith("pyfrep-diff")
-        if parallel and not nested and x.device.type == "cpu" and torch.get_num_threads() > 1:
+        threads = torch.get_num_threads()
+        pooled = parallel and not nested and x.device.type == "cpu" and threads > 1
+        if pooled:  # a multiple of the threads in equal pieces (none larger than asked): no thread idles at the end
+            count = -(-n // size)
+            size = -(-n // (-(-count // threads) * threads))
+        pieces = [x[i : i + size] for i in range(0, n, size)]
+        if pooled:
             contexts = [contextvars.copy_context() for _ in pieces]  # one copy per task: a context runs once at a time
             results = list(_workers().map(lambda c, p: c.run(fn, p), contexts, pieces))
         else:

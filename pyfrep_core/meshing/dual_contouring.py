@@ -283,6 +283,10 @@ def _contour(
     cell_lo = lo + vcell * spacing
     cell_hi = np.minimum(cell_lo + spacing, hi)
     x, rank = _solve_qef(ata, atb, mass, cell_lo, cell_hi)
+    # a cell crossed by two or more sheets (a feature thinner than the cell): their QEF points, each
+    # free in the whole cell, can cross the other sheet; their mass points stay between their own edges
+    shared = np.repeat(n_comp > 1, n_comp)
+    x[shared], rank[shared] = mass[shared], 0
     x, smooth_gradient = _project_smooth(f, x, rank, cell_lo, cell_hi, device, spacing)
     # quads of the edges whose four cells lie in the grid, oriented outward (toward f <= 0)
     full = (vert >= 0).all(axis=1)

@@ -468,6 +468,10 @@ def _polish(prob: _Problem, x: torch.Tensor, u0: torch.Tensor, cfg: dict, report
     surface, where the fit ends (Gauss-Newton leaves out the residual's second derivatives
     likewise); it would cost second derivatives of f at every point.
 
+    A robust round runs MINPACK's Levenberg-Marquardt ("lm", QR of J) and falls back to the
+    bounded 'trf' when its answer leaves the parameter box: on a tall Jacobian (thousands of points,
+    a dozen parameters) trf's SVD of each step costs more than the model's calls.
+
     A robust loss is minimized by iteratively reweighted least squares: each round solves the
     weighted problem ``sqrt(w_i) r_i`` with the weights w(r / s) of the previous round's residuals
     (:func:`pyfrep_core.residuals.weights`) and the scale s re-estimated from them (unless given),
@@ -542,18 +546,27 @@ def _polish(prob: _Problem, x: torch.Tensor, u0: torch.Tensor, cfg: dict, report
                 scale = reweight(fun(p0))  # the weights of the first round (sw is still None: raw residuals)
             while True:
                 rounds += 1
-                sol = least_squares(
-                    fun,
-                    p,
+                common = dict(
                     jac=jac,
-                    bounds=(prob.lower, prob.upper),
-                    method="trf",
                     x_scale=prob.upper - prob.lower,
                     xtol=cfg["xtol"],
                     ftol=cfg["xtol"],
                     gtol=cfg["xtol"],
-                    max_nfev=max(1, budget - len(losses)),
                 )
+                sol = None
+                if robust:
+                    sol = least_squares(fun, p, method="lm", max_nfev=max(1, budget - len(losses)), **common)
+                    if not np.all((sol.x >= prob.lower) & (sol.x <= prob.upper)):
+                        sol = None
+                if sol is None:
+                    sol = least_squares(
+                        fun,
+                        np.clip(p, prob.lower, prob.upper),
+                        bounds=(prob.lower, prob.upper),
+                        method="trf",
+                        max_nfev=max(1, budget - len(losses)),
+                        **common,
+                    )
                 message = sol.message
                 moved = float(np.max(np.abs(sol.x - p) / (prob.upper - prob.lower)))
                 p = sol.x

@@ -441,7 +441,10 @@ def div(v: Callable, x: Any, create_graph: bool = False, chunk: int | None = Non
 
 # ----------------------------------------------------------------------------- shape parameters
 
-PARAM_CPU_CHUNK = 1 << 15  # points per per-sample pass on the CPU: 1.4x faster than 8192 (vmap's per-call cost)
+# a per-sample pass's (n,) temporaries stay under glibc's 128 KiB mmap threshold: heap blocks, not a fresh
+# mmap and page faults per temporary (2^14 points in float64: 2x faster than 2^15 with the threshold fixed,
+# as benchmarks/sensitivity.py runs; 1.2x slower without; 8192 pays vmap's per-call cost)
+PARAM_CPU_CHUNK_BYTES = 124 << 10
 PARAM_POINT_BYTES = 16 << 10  # bytes one point may take in a per-sample pass (its share of the model's graph)
 
 
@@ -454,7 +457,7 @@ def _param_chunk(x: torch.Tensor, chunk: int | None) -> int:
     """
     if chunk is not None:
         return _chunk_size(x, chunk)
-    size = PARAM_CPU_CHUNK if x.device.type == "cpu" else CHUNK
+    size = PARAM_CPU_CHUNK_BYTES // x.element_size() if x.device.type == "cpu" else CHUNK
     return max(64, min(size, call_budget(x.device) // PARAM_POINT_BYTES))
 
 
@@ -466,7 +469,8 @@ def _param_jacobian(
     create_graph: bool = False,
     chunk: int | None = None,
     label: str = "model",
-) -> torch.Tensor:
+    spatial: bool = False,
+) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
     """df(x_i)/dp_j, (N, P): the one implementation of per-point parameter derivatives.
 
     Per-sample reverse mode over chunks of points: ``f_one_point(x_i, *p)`` calls
@@ -491,10 +495,12 @@ def _param_jacobian(
     ``values`` holds every parameter (floats or 0-d tensors), ``names`` those to differentiate
     by.  With ``create_graph`` the result stays attached to tensors in ``values`` (and to ``x``)
     that require grad, in one piece; otherwise it is detached and chunks run in parallel threads.
+    ``spatial``: also grad f (N, d), from the same forward and reverse pass (the points are
+    differentiated by too: sample i depends on x_i only), returned as ``(df/dp, grad f)``.
     """
     names = list(names)
     n = x.shape[0]
-    if not names:
+    if not names and not spatial:
         return x.new_zeros(n, 0)
     check_memory(
         2.0 * n * len(names) * x.element_size(),
@@ -523,36 +529,38 @@ def _param_jacobian(
 
     per_sample = torch.func.vmap(f_one_point)
 
-    def jacobian(xc: torch.Tensor, batched: bool) -> torch.Tensor:
+    def jacobian(xc: torch.Tensor, batched: bool) -> tuple[torch.Tensor, ...]:
         deltas = [torch.zeros(xc.shape[0], dtype=xc.dtype, device=xc.device, requires_grad=True) for _ in names]
         with torch.enable_grad():
+            xs = _leaf(xc, create_graph) if spatial else xc
+            wrt = [*deltas, xs] if spatial else deltas
             pv = [p + d for p, d in zip(primals, deltas)]  # p exactly; sample i's own copy to differentiate by
             if batched:
-                y = per_sample(xc, *pv)
+                y = per_sample(xs, *pv)
             else:  # one point at a time, for models vmap cannot run
-                y = torch.stack([f_one_point(xc[i], *(q[i] for q in pv)) for i in range(xc.shape[0])])
+                y = torch.stack([f_one_point(xs[i], *(q[i] for q in pv)) for i in range(xc.shape[0])])
             if not y.requires_grad:
-                return xc.new_zeros(xc.shape[0], len(names))
-            g = torch.autograd.grad(y.sum(), deltas, create_graph=create_graph, allow_unused=True)
-        return torch.stack([torch.zeros_like(d) if gj is None else gj for gj, d in zip(g, deltas)], dim=1)
+                g = [None] * len(wrt)
+            else:
+                g = torch.autograd.grad(y.sum(), wrt, create_graph=create_graph, allow_unused=True)
+        g = [torch.zeros_like(w) if gj is None else gj for gj, w in zip(g, wrt)]
+        jac = torch.stack(g[: len(names)], dim=1) if names else xc.new_zeros(xc.shape[0], 0)
+        return (jac, g[-1]) if spatial else (jac,)
 
-    def chunk_fn(xc: torch.Tensor) -> tuple[torch.Tensor]:
+    def chunk_fn(xc: torch.Tensor) -> tuple[torch.Tensor, ...]:
         xin = xc if create_graph else xc.detach()
         if vmap_refused(fn):
-            jac = jacobian(xin, False)
+            out = jacobian(xin, False)
         else:
             try:
-                jac = jacobian(xin, True)
+                out = jacobian(xin, True)
             except RuntimeError as err:  # vmap cannot run this model: per point, with one warning per model
                 remember_refusal(fn, label, str(err).splitlines()[0] if str(err) else type(err).__name__)
-                jac = jacobian(xin, False)
-        return (jac if create_graph else jac.detach(),)
+                out = jacobian(xin, False)
+        return out if create_graph else tuple(t.detach() for t in out)
 
-    if create_graph:
-        (out,) = chunk_fn(x)
-        return out
-    (out,) = _map_chunks(chunk_fn, x, _param_chunk(x, chunk))
-    return out
+    out = chunk_fn(x) if create_graph else _map_chunks(chunk_fn, x, _param_chunk(x, chunk))
+    return out if spatial else out[0]
 
 
 @named_entry
@@ -577,8 +585,8 @@ def param_grad(
         tensors keep their graph when ``create_graph`` is set.
     create_graph : keep the graph to ``x`` and to parameter tensors that require grad (the
         derivatives can then enter a loss); all points are processed in one piece.
-    chunk : points per pass; default 2^15 on the CPU (in parallel threads), 2^18 elsewhere,
-        fewer when the available memory is short.
+    chunk : points per pass; default on the CPU 15872 in float64, 31744 in float32 (in parallel
+        threads), 2^18 elsewhere, fewer when the available memory is short.
 
     Returns
     -------

@@ -11,10 +11,9 @@ solid (material is removed), v < 0 where the solid grows.  A drilled cylinder of
 (f = y^2 + z^2 - r^2 near its wall) has v = -(-2r) / (2r) = 1 on its wall: the hole widens
 at unit speed.
 
-df/dp comes from the kernel's one implementation of per-point parameter derivatives
-(per-sample reverse mode, :func:`pyfrep_core.diff.param_grad`), grad f from
-:func:`pyfrep_core.diff.value_and_grad`; both are chunked, thread-safe and work for any model
-that maps (N, d) to (N,).
+df/dp and grad f come from the kernel's one implementation of per-point parameter derivatives
+(per-sample reverse mode, :func:`pyfrep_core.diff.param_grad`), from one forward and one reverse
+pass; it is chunked, thread-safe and works for any model that maps (N, d) to (N,).
 """
 
 from __future__ import annotations
@@ -25,7 +24,7 @@ import numpy as np
 import torch
 
 from ._array import as_tensor, check_finite, check_option, check_points, named_entry
-from .diff import _param_jacobian, value_and_grad
+from .diff import _param_jacobian
 from .model import Model
 
 __all__ = ["normal_velocity", "param_derivative", "velocity"]
@@ -105,9 +104,9 @@ def normal_velocity(
     values = _params(model, name, params)
     if chunk is not None:
         chunk = check_option(chunk, "chunk", "normal_velocity", "int", positive=True)
-    df_dp = _param_jacobian(model.fn, t, values, [name], chunk=chunk, label=model.__name__)[:, 0]
-    _, g = value_and_grad(lambda p: model(p, **values), t, chunk=chunk)
-    out = velocity(df_dp, g.norm(dim=-1))
+    # df/dp and grad f from one forward and one reverse pass
+    df_dp, g = _param_jacobian(model.fn, t, values, [name], chunk=chunk, label=model.__name__, spatial=True)
+    out = velocity(df_dp[:, 0], g.norm(dim=-1))
     return out.cpu().numpy() if was_numpy else out
 
 

@@ -6,7 +6,9 @@ multiplying by sign(f) keeps the zero set of f exactly, whatever the network doe
 the surface (|d| has a crease there, d has not), so a small network fits it well, and
 ``sign(f) |g|`` equals g wherever their signs agree.  sign(f) is evaluated without gradient.
 
-Training minimizes, over minibatches,
+Two modes.  ``mode="paper"`` is the paper's method: the eikonal loss with no distance labels,
+every target from f (g = 0 and grad g = -grad f/|grad f| on projected surface samples; see
+:func:`redistance`).  ``mode="supervised"`` (the default) minimizes, over minibatches,
 
 * the eikonal loss ``E (|grad d| - 1)^2`` (paper eq. ``loss_eik``) on uniform samples of the
   bounds, grad d by one backward pass with ``create_graph=True``; or, with
@@ -18,9 +20,9 @@ Training minimizes, over minibatches,
 * a supervised term ``E (g(x) - d*(x))^2`` on a pool of points whose distance d* is known:
   the distance to dense projected surface samples refined by closest-point steps
   (:func:`pyfrep_core.distance.true_distance`), plus g = 0 on surface points.  It is what
-  makes a small network accurate in seconds; ``supervised=0`` trains on the eikonal loss
-  alone, as the paper does, with only the boundary condition g = 0 on surface samples (with
-  sign(f) h and nothing else, h = |distance + c| satisfies the eikonal equation for any c).
+  makes a small network accurate in seconds, and it is the reference the errors are scored
+  against.  Without labels use ``mode="paper"`` (with sign(f) h and nothing else, h =
+  |distance + c| satisfies the eikonal equation for any c: the surface terms pin c = 0).
 
 Choices measured on the ellipsoid (1, 0.6, 0.4) in [-1.5, 1.5]^3 on 2 CPU cores
 (benchmarks/redistance.py; mean absolute error on a 40^3 grid, exact distance):

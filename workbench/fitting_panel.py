@@ -129,6 +129,7 @@ class FittingPanel(widgets.VBox):
         self.run: BackgroundRun | None = None
         self.events: list[Any] = []
         self._offsets: dict[str, int] = {}
+        self._last_x: dict[str, int] = {}  # the last x charted per stage
         self._next_x = 0
         self._first_loss: float | None = None
         self._generation = 0  # bumped when the data or model changes: a late fit of old data is not drawn
@@ -319,7 +320,7 @@ class FittingPanel(widgets.VBox):
             self.run_button.disabled, self.stop_button.disabled = False, True
         self.result = None
         self.events = []
-        self._offsets, self._next_x, self._first_loss = {}, 0, None
+        self._offsets, self._last_x, self._next_x, self._first_loss = {}, {}, 0, None
         self.loss_chart.clear()
         self.param_chart.clear()
         self.loss_chart.refresh(force=True)
@@ -395,7 +396,7 @@ class FittingPanel(widgets.VBox):
 
     def _clear_fit(self) -> None:
         self.events = []
-        self._offsets, self._next_x, self._first_loss = {}, 0, None
+        self._offsets, self._last_x, self._next_x, self._first_loss = {}, {}, 0, None
         self.loss_chart.clear()
         self.param_chart.clear()
         self.bar.value, self.bar.max, self.bar.description, self.bar.bar_style = 0, 1, "", ""
@@ -408,6 +409,11 @@ class FittingPanel(widgets.VBox):
         if event.stage not in self._offsets:
             self._offsets[event.stage] = self._next_x
         x = self._offsets[event.stage] + event.step
+        last = self._last_x.get(event.stage)
+        if last is not None and x <= last:  # a stage whose count restarts (the polish's reweighting rounds)
+            self._offsets[event.stage] += last + 1 - x
+            x = last + 1
+        self._last_x[event.stage] = x
         self._next_x = max(self._next_x, x + 1)
         if np.isfinite(event.loss):
             self.loss_chart.add(event.stage, x, max(event.loss, 1e-300))
@@ -492,7 +498,7 @@ class FittingPanel(widgets.VBox):
             f"on {html.escape(self.data_name)}: "
             f"loss {result.loss:.3e}, stages {', '.join(result.stages)}; "
             f"{html.escape(result.residual)} residual, {html.escape(result.loss_function)} loss, "
-            f"{len(result.starts)} start(s); RMS {result.rms:.3g}{unit}, max {result.max_distance:.3g}{unit}; "
+            f"{len(result.starts) or 1} start(s); RMS {result.rms:.3g}{unit}, max {result.max_distance:.3g}{unit}; "
             f"{n_out} outliers{found} drawn in red</span><br><small>cloud coloured by the {what}{unit} of the "
             f"inliers (viridis, 0 dark to {top:.2g} yellow, 99th percentile); fitted surface translucent; "
             f"polish: {html.escape(result.termination)}</small>{reason}"

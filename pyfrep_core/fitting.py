@@ -891,7 +891,7 @@ def _load_data(data: Any, dim: int, mesh_samples: int) -> tuple[Any, str]:
     import os
 
     from .io import MESH_FORMATS, POINT_FORMATS, PointCloud, load_mesh, load_points
-    from .mesh import Mesh
+    from .meshing import Mesh
     from .sampling import sample_mesh
 
     source = "array"

@@ -1,6 +1,6 @@
 """Static figures for lessons and reports: off-screen renders of meshes, and a projector style.
 
-The kernel returns data; this module only turns a :class:`~pyfrep_core.mesh.Mesh` (or several)
+The kernel returns data; this module only turns a :class:`~pyfrep_core.meshing.Mesh` (or several)
 into a PNG, with the choices a lecture needs made once: the camera fills the frame (parallel
 projection, fitted to the projected extent of the vertices, not to a bounding sphere), titles and
 colour-bar text are large enough for a projector, and a colour bar always says what its colour

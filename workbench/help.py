@@ -36,16 +36,19 @@ HELP: dict[str, str] = {
     ),
     "Redistancing": (
         "Training a network h so that d(x) = sign(f(x)) h(x) is the signed distance to f = 0 (paper section 5.3): "
-        "the loss is the eikonal residual E(|&nabla;d| &minus; 1)&sup2; over the box (eq. 9), plus a fit to "
-        "distances sampled near the surface. The sign of f keeps the surface exactly where it is. The slices "
-        "compare f and d with the true distance (the pawn: Figs. 7 and 8). Stop ends the training early."
+        "the loss is the eikonal residual E(|&nabla;d| &minus; 1)&sup2; over the box (eq. 9); the default "
+        "also fits distances sampled near the surface (labels), the paper's mode uses only f. The sign of f keeps "
+        "the surface exactly where it is. The slices compare f and d with the true distance (the pawn: "
+        "Figs. 7 and 8). Stop ends the training early."
     ),
     "Fitting": (
-        "Recovering a model's parameters p from points x<sub>i</sub> sampled on a surface by minimizing "
-        "E(p) = (1/N) &Sigma; f(x<sub>i</sub>; p)&sup2; (paper eq. 10): regularized evolution finds a start, "
-        "then gradient descent with &part;f/&part;p from automatic differentiation refines it (section 5.4). "
-        "The points are coloured by their residual |f(x<sub>i</sub>; p)| (Fig. 9); the fitted surface is the "
-        "microstructure of Fig. 10."
+        "Recovering a model's parameters p from points x<sub>i</sub> measured on a surface (section 5.4). The "
+        "paper's loss is algebraic, E(p) = (1/N) &Sigma; f(x<sub>i</sub>; p)&sup2; (eq. 10); the <i>geometric</i> "
+        "residual f/|&nabla;f| (&delta;<sub>1</sub>, eq. 8) is a length, independent of how f is scaled. "
+        "Regularized evolution finds a start, gradient descent and a least-squares polish with &part;f/&part;p from "
+        "automatic differentiation refine it; <i>pose</i> adds a rigid move (and scale) of the points, "
+        "<i>loss</i> a robust weighting that sets stray points (red) apart. Points are coloured by their residual "
+        "(Fig. 9 for the microstructure); the table gives each parameter &plusmn; its standard error."
     ),
 }
 

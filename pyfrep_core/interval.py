@@ -1239,7 +1239,8 @@ def _boxes(lo: Any, hi: Any) -> tuple[torch.Tensor, torch.Tensor, bool, Any]:
     if bool(bad.any()):
         i = int(torch.nonzero(bad)[0, 0])
         raise ValueError(f"bounds: box {i} has lo > hi: lo={tl[i].tolist()}, hi={th[i].tolist()}")
-    return tl, th, was_numpy, lo.dtype if was_numpy else tl.dtype
+    # numpy in, numpy out of the input's dtype (lists and tuples of numbers are float64, as_tensor's rule)
+    return tl, th, was_numpy, (np.dtype(str(tl.dtype).removeprefix("torch.")) if was_numpy else tl.dtype)
 
 
 def _params(f: Callable, like: torch.Tensor, params: dict) -> dict:

@@ -304,6 +304,10 @@ def test_numpy_in_numpy_out_and_dtype_kept():
     t = torch.tensor([[0.1, 0.2, 0.3]], dtype=torch.float64)
     flo, fhi = bounds(lambda x: P.sphere(x, r=1.0), t, t + 0.1)
     assert isinstance(flo, torch.Tensor) and flo.dtype == torch.float64
+    # nested lists are numbers without a dtype: float64 numpy out (as_tensor's rule), not a crash
+    flo, fhi = bounds(lambda x: P.sphere(x, r=1.0), [[0.1, 0.2, 0.3]], [[0.2, 0.3, 0.4]])
+    assert isinstance(flo, np.ndarray) and flo.dtype == np.float64
+    assert flo[0] <= exact[1] and exact[0] <= fhi[0]
 
 
 def test_model_parameters_and_defaults():

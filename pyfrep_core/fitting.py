@@ -73,6 +73,11 @@ SHAPE_SPREAD = 0.1  # std of a pose population's shape around the declared defau
 PROBES = 2  # plateau probes (and re-polishes) after a robust polish at most
 PROBE_VALUES = 24  # values of each dimension a probe tries across its range
 PROBE_GAIN = 0.005  # a probe's move must lower the loss by this fraction (the re-polish must confirm it)
+# the floor of an estimated noise scale, relative to the data's size (its bounding box diagonal):
+# exact data (points on the surface) has residuals of rounding size, whose MAD would make most
+# points outliers and the loss infinite; 1e-6 of the size is far above float64 rounding of the
+# models' values and far below any measuring noise
+SCALE_FLOOR = 1e-6
 AUTO_STARTS = 8  # starts=None keeps at most this many pose candidates (those fitting the points best)
 # defaults of the settings left None: the paper's protocol, and a local multi-start one for posed parts
 PAPER_PROTOCOL = {"stages": STAGES, "cycles": 10_000, "population_size": 100, "children": 50, "final_subsample": 8192}
@@ -112,13 +117,13 @@ class FitResult:
     free : names of the fitted (not fixed) parameters.
     residual : "algebraic" (f) or "geometric" (f / |grad f|), the residual minimized.
     loss_function : "l2", "huber", "cauchy" or "trimmed" (``loss`` is its final value).
-    loss_scale : the noise scale s of a robust loss (given, or 1.4826 median |r| at the end), in the
-        residual's units; None for l2.
+    loss_scale : the noise scale s of a robust loss (given, or 1.4826 median |r| at the end, at
+        least ``SCALE_FLOOR`` x the data's size), in the residual's units; None for l2.
     rms, max_distance : root mean square and largest geometric distance |f| / |grad f| over the
         inliers, in the points' (the model's) units (NaN for a model torch.func cannot differentiate).
     inliers : (N,) bool numpy: |r| <= 3 s for a robust loss, every point for l2.
     outlier_fraction : fraction of the points that are not inliers.
-    starts : one dict per start: ``start`` (parameters it began from), ``params`` (where it ended),
+    starts : one dict per start, always at least one: ``start`` (parameters it began from), ``params`` (where it ended),
         ``loss`` (its loss on a common subset of the points, or the polished loss), ``best`` (kept).
     termination : why the least-squares polish ended (scipy's message, with the reweighting
         rounds of a robust loss), or why there was no polish.
@@ -188,6 +193,30 @@ class _Problem:
         self.upper = np.array([box[k][1] for k in self.free])
         self.residual, self.loss, self.loss_scale = residual, loss, loss_scale
         self._geometric = geometric(model.fn) if residual == "geometric" else None
+        self.scale_floor = 0.0  # of an estimated noise scale, in the residual's units (set_scale_floor)
+
+    def set_scale_floor(self, x: torch.Tensor) -> None:
+        """``SCALE_FLOOR`` times the points' box diagonal, a length; for algebraic residuals times
+        the median |grad f| at the declared defaults (f's value per unit length near the surface)."""
+        pts = x.detach().to(torch.float64)
+        size = float(torch.linalg.vector_norm(pts.max(0).values - pts.min(0).values))
+        if self.model.bounds is not None:
+            lo, hi = (torch.as_tensor(b, dtype=torch.float64) for b in self.model.bounds)
+            size = max(size, float(torch.linalg.vector_norm(hi - lo)))
+        per_length = 1.0
+        if self.residual == "algebraic":
+            values = {**self.model.defaults(), **self.fixed}
+            values = {k: torch.tensor(float(v), dtype=torch.float64, device=x.device) for k, v in values.items()}
+            try:
+                with torch.no_grad():
+                    _, g = value_and_gradnorm(self.model.fn, pts[:2000], values)
+                per_length = float(g.median())
+            except RuntimeError:  # a model torch.func cannot differentiate: f taken as a distance
+                pass
+            if not (math.isfinite(per_length) and per_length > 0):
+                per_length = 1.0
+        floor = SCALE_FLOOR * size * per_length
+        self.scale_floor = floor if math.isfinite(floor) and floor > 0 else 0.0
 
     def to_params(self, u: torch.Tensor) -> torch.Tensor:
         """Normalized coordinates u in [0, 1]^P -> parameter values (same shape)."""
@@ -222,7 +251,7 @@ class _Problem:
 
     def objective(self, r: torch.Tensor) -> torch.Tensor:
         """The loss of residuals (..., N) over the last axis (mean r^2 for l2)."""
-        return objective(r, self.loss, self.loss_scale)
+        return objective(r, self.loss, self.loss_scale, self.scale_floor)
 
     def as_dict(self, p: Sequence[float]) -> dict[str, float]:
         values = {k: float(v) for k, v in zip(self.free, p)}
@@ -460,8 +489,11 @@ def _jacobian(prob: _Problem, x: torch.Tensor, p: torch.Tensor) -> torch.Tensor:
     return _param_jacobian(prob.model.fn, x, values, prob.free, label=prob.model.__name__)
 
 
-def _polish(prob: _Problem, x: torch.Tensor, u0: torch.Tensor, cfg: dict, report) -> dict[str, Any]:
+def _polish(prob: _Problem, x: torch.Tensor, u0: torch.Tensor, cfg: dict, report, offset: int = 0) -> dict[str, Any]:
     """Bounded least squares on the residuals: scipy's 'trf' with an autodiff Jacobian.
+
+    ``offset``: the evaluations of earlier polishes of the same fit (a probe's re-polish): its
+    reported steps continue from there, so that the stage's step count never goes back.
 
     Geometric residuals ``r = f / |grad f|`` take the Jacobian ``(df/dp) / |grad f|``: the term
     ``-f d|grad f|/dp / |grad f|^2`` it leaves out is proportional to f, so it vanishes on the
@@ -515,7 +547,7 @@ def _polish(prob: _Problem, x: torch.Tensor, u0: torch.Tensor, cfg: dict, report
     def loss_of(r: np.ndarray) -> float:
         return float(prob.objective(torch.from_numpy(r)))
 
-    with report(budget, "polish", every=1) as progress:
+    with report(offset + budget, "polish", every=1) as progress:
 
         def fun(p: np.ndarray) -> np.ndarray:
             r = raw(p)[0]
@@ -524,7 +556,7 @@ def _polish(prob: _Problem, x: torch.Tensor, u0: torch.Tensor, cfg: dict, report
                 last["p"], last["r"] = p.copy(), r
             best = last["p"]
             # every evaluation is reported (there are few), with the best loss and parameters so far
-            if progress.update(len(losses) - 1, min(losses), lambda: prob.as_dict(best)):
+            if progress.update(offset + len(losses) - 1, min(losses), lambda: prob.as_dict(best)):
                 raise _StopRequestedError
             return r if sw[0] is None else sw[0] * r
 
@@ -534,7 +566,7 @@ def _polish(prob: _Problem, x: torch.Tensor, u0: torch.Tensor, cfg: dict, report
 
         def reweight(r: np.ndarray) -> float:
             rt = torch.from_numpy(r)
-            s = float(robust_scale(rt)) if prob.loss_scale is None else prob.loss_scale
+            s = float(robust_scale(rt, prob.scale_floor)) if prob.loss_scale is None else prob.loss_scale
             sw[0] = np.sqrt(weights(rt, prob.loss, s).numpy())
             return s
 
@@ -587,7 +619,7 @@ def _polish(prob: _Problem, x: torch.Tensor, u0: torch.Tensor, cfg: dict, report
         if jmat is None:  # a robust loss: the M-estimator's sandwich at the final weights
             jmat, rvec = raw_jac(p), raw(p)[0]
             rt = torch.from_numpy(rvec)
-            s = float(robust_scale(rt)) if prob.loss_scale is None else prob.loss_scale
+            s = float(robust_scale(rt, prob.scale_floor)) if prob.loss_scale is None else prob.loss_scale
             w = weights(rt, prob.loss, s).numpy()
             bread = slopes(rt, prob.loss, s).numpy()
             jmat, rvec = np.sqrt(w)[:, None] * jmat, np.sqrt(w) * rvec  # meat: (w r)^2 = (rho'/2)^2
@@ -746,8 +778,9 @@ def fit(
     loss : "l2", "huber", "cauchy" or "trimmed" (:mod:`pyfrep_core.residuals`); a robust loss
         bounds the pull of outliers, and ``inliers`` marks the points within 3 scales.
     loss_scale : the noise scale s of a robust loss, in the residual's units; None: estimated
-        from the residuals (1.4826 x their median absolute value) and re-estimated as the fit moves.
-        Give it for exact data (a CAD mesh: its vertices lie on the surface, so the median residual
+        from the residuals (1.4826 x their median absolute value, never below ``SCALE_FLOOR`` = 1e-6
+        of the data's size, so exact data stays finite with no outliers) and re-estimated as the
+        fit moves.  Give it for exact data (a CAD mesh: its vertices lie on the surface, so the median residual
         is about 0 and every facet point would look like an outlier): the facets' deviation.
     starts : number of starts: pose candidates (when ``pose``) first, then the same with random
         shape parameters; evolution and Adam run for all of them together (one batch of parameter
@@ -873,6 +906,8 @@ def fit(
     if stop is not None and not callable(getattr(stop, "is_set", None)):
         raise TypeError(f"fit: stop must have an is_set() method (a threading.Event) or be None, got {stop!r}")
     prob = _Problem(model, {k: float(v) for k, v in fixed.items()}, box, residual, loss, loss_scale)
+    if loss != "l2" and loss_scale is None:
+        prob.set_scale_floor(x)
     gen = torch.Generator().manual_seed(seed if seed is not None else int(torch.randint(2**62, ()).item()))
     candidates = _pose_candidates(model, x, init, fixed) if posing else []
     cfg["pose_dims"] = [j for j, k in enumerate(prob.free) if k in model.pose_names] if posing else []
@@ -1065,7 +1100,7 @@ def _run_stages(
                 jump = _probe(prob, xw, polished["p"], polished["scale"], cfg)
                 if jump is None:
                     break
-                again = _polish(prob, x, torch.as_tensor(prob.to_unit(jump)), cfg, report)
+                again = _polish(prob, x, torch.as_tensor(prob.to_unit(jump)), cfg, report, len(history[stage]))
                 history[stage] += again["losses"]
                 stopped = again["stopped"]
                 before, after = (_loss_at(prob, x, q["p"], polished["scale"]) for q in (polished, again))
@@ -1082,9 +1117,11 @@ def _run_stages(
     result = _summarize(prob, x, params, polished, stopped)
     timings["residuals"] = time.perf_counter() - t0
     timings["total"] = time.perf_counter() - start
-    if polished is not None and summaries:
+    if not summaries:  # one start (no pose, starts=1): listed all the same
+        summaries.append({"start": prob.as_dict(prob.to_params(first.to(torch.float64)).tolist()), "best": True})
+    if polished is not None or len(summaries) == 1:
         best = next(s for s in summaries if s["best"])
-        best["params"], best["loss"], best["polished"] = dict(params), result.loss, True
+        best["params"], best["loss"], best["polished"] = dict(params), result.loss, polished is not None
     result.history, result.timings, result.starts = history, timings, summaries
     result.stages = tuple(s for s in stages if s in timings)
     return result
@@ -1104,7 +1141,7 @@ def _summarize(prob: _Problem, x: torch.Tensor, params: dict, polished: dict | N
     r = torch.from_numpy(residuals)
     scale = None
     if prob.loss != "l2":
-        scale = prob.loss_scale if prob.loss_scale is not None else float(robust_scale(r))
+        scale = prob.loss_scale if prob.loss_scale is not None else float(robust_scale(r, prob.scale_floor))
     loss = float(objective(r, prob.loss, scale))
     mask = inliers(r, prob.loss, scale if scale is not None else 1.0).numpy()
     if signed is not None:
@@ -1130,7 +1167,9 @@ def _summarize(prob: _Problem, x: torch.Tensor, params: dict, polished: dict | N
             reason = f"the Jacobian has no usable rank (parameters {', '.join(null) or 'all'}): no standard errors"
         else:
             standard_errors = {
-                k: float(math.sqrt(max(covariance[j, j], 0.0))) for j, k in enumerate(free) if k not in null
+                k: float(math.sqrt(covariance[j, j]))
+                for j, k in enumerate(free)
+                if k not in null and math.isfinite(covariance[j, j]) and covariance[j, j] >= 0.0
             }
             if null:
                 zero = [free[i] for i in polished["zero"]]
@@ -1143,6 +1182,14 @@ def _summarize(prob: _Problem, x: torch.Tensor, params: dict, polished: dict | N
             warnings.warn(f"fit: {model.__name__}: {reason}", IdentifiabilityWarning, stacklevel=4)
     elif not reason:
         reason = "standard errors come from the least-squares polish, which did not run"
+    missing = [k for k in free if k not in standard_errors]
+    if missing and not reason:  # every missing standard error comes with its reason
+        reason = f"the covariance of {', '.join(missing)} is not finite or negative: no standard error"
+    if not math.isfinite(loss):  # never silently: say why in the termination and the standard errors
+        why = f"the final loss is {loss} (non-finite residuals at the fitted parameters)"
+        warnings.warn(f"fit: {model.__name__}: {why}", RuntimeWarning, stacklevel=4)
+        termination = f"{termination}; {why}" if termination else why
+        reason = f"{reason}; {why}" if reason else why
     return FitResult(
         params=params,
         loss=loss,

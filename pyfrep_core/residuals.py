@@ -159,23 +159,29 @@ def slopes(r: torch.Tensor, loss: str, scale: float | torch.Tensor) -> torch.Ten
     return (u.abs() <= c).to(u.dtype)
 
 
-def robust_scale(r: torch.Tensor) -> torch.Tensor:
+def robust_scale(r: torch.Tensor, floor: float = 0.0) -> torch.Tensor:
     """The noise level of residuals (..., N): ``1.4826 * median |r|`` over the last axis, (...).
 
-    Never 0 (a floor of the dtype's tiny), so residuals can always be divided by it.
+    Never below ``floor`` (in the residuals' units) nor 0: exact data (points on the surface) has
+    a median residual of rounding size, and a scale of that size would make ``r / s`` huge or
+    infinite and most points outliers.  The caller gives the floor from the problem
+    (:func:`pyfrep_core.fit` uses ``SCALE_FLOOR`` times the data's size).
 
     >>> import torch
     >>> robust_scale(torch.tensor([1.0, -1.0, 2.0, 100.0, -0.5]))
     tensor(1.4826)
+    >>> robust_scale(torch.zeros(4), floor=1e-6)
+    tensor(1.0000e-06)
     """
     med = r.detach().abs().median(dim=-1).values
-    return (MAD_TO_SIGMA * med).clamp_min(torch.finfo(r.dtype).tiny)
+    return (MAD_TO_SIGMA * med).clamp_min(max(float(floor), torch.finfo(r.dtype).tiny))
 
 
-def objective(r: torch.Tensor, loss: str, scale: float | None) -> torch.Tensor:
+def objective(r: torch.Tensor, loss: str, scale: float | None, floor: float = 0.0) -> torch.Tensor:
     """Mean loss of residuals (..., N) over the last axis, in squared length units: ``s^2 mean rho(r/s)``.
 
-    ``scale`` None: each row's own :func:`robust_scale` (held fixed for gradients).  For l2 this is
+    ``scale`` None: each row's own :func:`robust_scale` (held fixed for gradients, never below
+    ``floor``).  For l2 this is
     ``mean r^2``, the paper's E(p) for algebraic residuals.
 
     >>> import torch
@@ -184,7 +190,7 @@ def objective(r: torch.Tensor, loss: str, scale: float | None) -> torch.Tensor:
     """
     if loss == "l2":
         return (r * r).mean(-1)
-    s = robust_scale(r) if scale is None else torch.as_tensor(scale, dtype=r.dtype, device=r.device)
+    s = robust_scale(r, floor) if scale is None else torch.as_tensor(scale, dtype=r.dtype, device=r.device)
     s = s.unsqueeze(-1) if s.ndim else s
     return (rho(r / s, loss) * s * s).mean(-1).reshape(r.shape[:-1])
 

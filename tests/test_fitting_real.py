@@ -20,7 +20,7 @@ import torch
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
-from pyfrep_core import Param, fit, model, polygonize, sample_surface, save_mesh, sdf
+from pyfrep_core import Param, fit, model, polygonize, sample_surface, save_mesh, sdf, sphere
 from pyfrep_core.diff import _param_jacobian
 from pyfrep_core.fitting import IdentifiabilityWarning, fit_error
 from pyfrep_core.models import cad_parts
@@ -237,7 +237,8 @@ def test_bare_arrays_keep_the_papers_protocol_and_report_fully():
     pts = sample_surface(ball, 300, params={"r": 1.2}, seed=0, resolution=32)
     res = fit(ball, pts, cycles=200, epochs=2, seed=0, progress=False)
     assert res.residual == "algebraic" and res.loss_function == "l2" and res.loss_scale is None
-    assert res.starts == [] and res.inliers.all() and res.outlier_fraction == 0.0 and res.units is None
+    assert len(res.starts) == 1 and res.starts[0]["best"] and res.starts[0]["params"] == res.params
+    assert res.inliers.all() and res.outlier_fraction == 0.0 and res.units is None
     assert res.loss == pytest.approx(np.mean(res.residuals**2))
     assert res.rms < 1e-9 and res.std_error_reason == "" and set(res.std_errors) == {"r"}
     assert "tolerance" in res.termination or "termination" in res.termination
@@ -270,3 +271,82 @@ def test_pose_names_may_not_clash():
         posed(slab)
     with pytest.raises(ValueError, match="fit: cannot tell the format"):
         fit(slab, "part.step")
+
+
+def _exact_pawn() -> tuple:
+    from pyfrep_core.models import pawn
+
+    return pawn, sample_surface(pawn, 2100, seed=0)  # no noise: residuals of rounding size
+
+
+def test_exact_data_with_a_robust_loss_is_finite_and_has_no_outliers():
+    # the MAD of exact data is ~0: the scale's floor (SCALE_FLOOR x the data's size) keeps r / s
+    # finite, so no point is an outlier, the loss is finite and the standard errors exist
+    from pyfrep_core.fitting import SCALE_FLOOR
+
+    pawn, pts = _exact_pawn()
+    res = fit(pawn, pts, loss="cauchy", cycles=200, epochs=2, seed=0, progress=False)
+    size = float(np.linalg.norm(np.subtract(*pawn.bounds[::-1])))
+    assert math.isfinite(res.loss)
+    assert res.loss_scale >= SCALE_FLOOR * size * 0.5  # the floor (algebraic: x median |grad f|, ~1 for the pawn)
+    assert res.outlier_fraction == 0.0
+    assert set(res.std_errors) == set(res.free) and res.std_error_reason == ""
+    assert all(math.isfinite(v) for v in res.std_errors.values())
+    for k, v in pawn.defaults().items():  # the data's truth, recovered far below the floor
+        assert abs(res.params[k] - v) < SCALE_FLOOR * size, k
+
+
+def _ball_points(n: int = 600, noise: float = 0.0) -> np.ndarray:
+    rng = np.random.default_rng(3)
+    d = rng.normal(size=(n, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    return d * (1.2 + noise * rng.normal(size=(n, 1))) + (0.1, 0.0, 0.0)
+
+
+@model(bounds=((-2,) * 3, (2,) * 3), r=Param(1.0, 0.5, 1.5), cx=Param(0.0, -0.5, 0.5))
+def _ball(x, r, cx):
+    return sphere(x, center=(cx, 0.0, 0.0), r=r)
+
+
+@pytest.mark.parametrize(
+    "kwargs",
+    [
+        {"loss": "l2"},
+        {"loss": "cauchy", "residual": "geometric"},
+        {"loss": "huber", "noise": 0.0},
+        {"loss": "l2", "stages": ("evolution",)},
+        {"loss": "trimmed", "pose": True, "fixed": {"cx": 0.0}, "stages": ("polish",)},
+        {"loss": "l2", "pose": True, "fixed": {"cx": 0.0}, "stages": ("polish",), "noise": 0.0},
+    ],
+)
+def test_std_errors_always_present_or_explained_and_starts_listed(kwargs):
+    kwargs = dict(kwargs)
+    pts = _ball_points(noise=kwargs.pop("noise", 1e-3))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", IdentifiabilityWarning)  # a posed ball's turns are unidentifiable
+        res = fit(_ball, pts, cycles=100, epochs=2, seed=0, progress=False, **kwargs)
+    assert math.isfinite(res.loss)
+    assert all(math.isfinite(v) for v in res.std_errors.values())
+    assert set(res.std_errors) == set(res.free) or res.std_error_reason
+    assert len(res.starts) >= 1 and sum(s["best"] for s in res.starts) == 1
+    best = next(s for s in res.starts if s["best"])
+    assert best["params"] == res.params
+
+
+def test_polish_steps_continue_across_re_polishes():
+    from pyfrep_core.fitting import _LazyProgress, _polish, _Problem
+
+    events = []
+    prob = _Problem(_ball, {}, {k: (p.lower, p.upper) for k, p in _ball.params.items()}, "geometric", "cauchy")
+    x = torch.as_tensor(_ball_points(noise=1e-3))
+    prob.set_scale_floor(x)
+    cfg = {"polish_iters": 40, "xtol": 1e-10}
+
+    def report(total, stage, every=1):
+        return _LazyProgress(total, stage, events.append, every, None, False)
+
+    first = _polish(prob, x, torch.tensor([0.2, 0.6]), cfg, report)
+    _polish(prob, x, torch.tensor([0.8, 0.4]), cfg, report, len(first["losses"]))
+    steps = [e.step for e in events]
+    assert steps == list(range(len(steps))) and len(steps) > len(first["losses"])
+    assert all(e.step < e.total for e in events)

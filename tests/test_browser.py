@@ -155,6 +155,9 @@ def test_slider_remeshes_and_the_view_changes(page):
     assert int(re.search(r"(\d+) triangles", compiled_text).group(1)) > 0
 
 
+RAN: set[str] = set()  # what ran in this page, for the last test (a later model change clears the fit's status)
+
+
 def test_fit_runs_chart_grows_and_loss_goes_down(page):
     page.get_by_role("tab", name="Fitting").click()
     run = page.get_by_role("button", name="Run")
@@ -176,6 +179,7 @@ def test_fit_runs_chart_grows_and_loss_goes_down(page):
     first = float(re.search(r"first ([0-9.e+-]+)", progress).group(1))
     final = float(re.search(r"loss ([0-9.e+-]+), stages", page.locator(".fit-done").inner_text()).group(1))
     assert final < first
+    RAN.add("fit")
 
 
 STUDENT_MODEL = """\
@@ -335,5 +339,5 @@ def test_the_microstructure_opens_cut_with_whole_slider_labels(page):
 
 def test_nothing_is_fetched_from_the_internet(page, external):
     """Last test: every request of the page (shape tab, fit, trame views) went to this machine."""
-    assert page.locator(".fit-done").count() == 1
+    assert "fit" in RAN  # the fit's requests are among those checked
     assert external == []

@@ -221,11 +221,13 @@ def picture_stats(png: bytes) -> dict[str, float]:
     rgb = pixels(png)
     lo, hi = rgb.min(-1), rgb.max(-1)
     r, g, b = rgb[..., 0], rgb[..., 1], rgb[..., 2]
+    # black: dark AND neutral (a black frame); the diverging map's dark ends, shaded, are dark but coloured
     return {
         "drawn": float(((lo < 225) & (hi > 50)).mean()),
-        "black": float((hi <= 50).mean()),
-        "red": float(((r > 150) & (r - g > 60) & (r - b > 60)).mean()),
-        "blue": float(((b > 150) & (b - r > 60) & (b - g > 20)).mean()),
+        "black": float(((hi <= 50) & (hi - lo < 12)).mean()),
+        "red": float(((r > 90) & (r - g > 60) & (r - b > 50)).mean()),
+        "blue": float(((b > 60) & (b - r > 40) & (b - g > 15)).mean()),
+        "coloured": float((hi - lo > 60).mean()),  # any colour map's saturated colours, not grey shading
     }
 
 
@@ -246,8 +248,9 @@ def view_picture(view, path: Path, ok, timeout: float = 20.0) -> tuple[bytes, di
 
 def rendered(stats: dict[str, float]) -> bool:
     """A shaded, coloured part, not a black or blank frame: the Fig. 1 part fills ~30% of the view,
-    under 1% is black (axes labels, colour bar text), the diverging colour map shows."""
-    return stats["drawn"] > 0.15 and stats["black"] < 0.05 and stats["red"] + stats["blue"] > 0.005
+    under 5% is neutral black (axes labels, colour bar text), a colour map shows (diverging for signed
+    quantities, one-sided for one-signed ones such as K on this part)."""
+    return stats["drawn"] > 0.15 and stats["black"] < 0.05 and stats["coloured"] > 0.05
 
 
 def trame_view(page, index: int):

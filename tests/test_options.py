@@ -356,12 +356,12 @@ class CountingBall:
 POOL = dict(pool_size=4096, surface_resolution=24, seed=0)
 
 
-@pytest.mark.parametrize("supervised", [1.0, 0.0])
-def test_stop_set_before_training_evaluates_nothing(supervised):
+@pytest.mark.parametrize("mode", ["supervised", "paper"])
+def test_stop_set_before_training_evaluates_nothing(mode):
     flag = threading.Event()
     flag.set()
     f = CountingBall()
-    net = redistance(f, BOUNDS, steps=50, supervised=supervised, eikonal=1.0, stop=flag, progress=False, **POOL)
+    net = redistance(f, BOUNDS, steps=50, mode=mode, eikonal=1.0, stop=flag, progress=False, **POOL)
     assert f.calls == 0 and net.history == []
 
 

@@ -39,3 +39,9 @@ def test_readme_blocks_run_in_order(tmp_path, monkeypatch):
     assert ns["fast_mesh"].volume() == pytest.approx(0.9868, abs=5e-5)
     # push-pull: the hole's radius follows the pulled wall
     assert ns["pulled"].change["r"] == pytest.approx(-0.05, abs=1e-6) and ns["pulled"].converged
+    # dual contouring: the Fig. 1 part's closed-form volume 0.9887887 within 1e-4 (marching cubes: 2e-3 off)
+    assert abs(ns["sharp"].volume() - 0.9887887) < 1e-4 < abs(ns["fast_mesh"].volume() - 0.9887887)
+    assert ns["hi"][0] < 0  # the corner box is proved outside
+    assert set(ns["grid"].array_names) >= {"f", "grad_norm", "omega1"} and ns["grid"].n_points == 32**3
+    # the free-form fit of the sphere: Chamfer under 1 % of its size (the bound), from 4,000 points
+    assert ns["gap"].chamfer < 0.01 and ns["gap"].hausdorff < 0.05

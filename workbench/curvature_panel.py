@@ -32,8 +32,8 @@ __all__ = ["CurvaturePanel", "curvature_panel", "QUANTITIES"]
 QUANTITIES = {"mean H": "H", "Gaussian K": "K", "kmin": "kmin", "kmax": "kmax"}
 UNITS = {"H": "1/length", "K": "1/length^2", "kmin": "1/length", "kmax": "1/length"}
 EQUATIONS = {
-    "H": "H = -div(n)/2, n = grad f/|grad f| (paper eq. mean_curv)",
-    "K": "K = grad f . Hessian*(f) . grad f^T / |grad f|^4 (paper eq. gauss_curv)",
+    "H": "H = -div(n)/2, n = grad f/|grad f| (paper eq. 3)",
+    "K": "K = grad f . Hessian*(f) . grad f^T / |grad f|^4 (paper eq. 4)",
     "kmin": "kmin = H - sqrt(H^2 - K)",
     "kmax": "kmax = H + sqrt(H^2 - K)",
 }
@@ -202,7 +202,7 @@ class CurvaturePanel(widgets.VBox):
             )
         self.status.value = (
             f"{html.escape(self.model_name)}: {self.mesh.n_vertices} vertices, curvatures in "
-            f"{1000 * self.seconds:.0f} ms; {html.escape(EQUATIONS[key])}; median {median:.4g} {unit}; colour "
+            f"{1000 * self.seconds:.0f} ms; {html.escape(EQUATIONS[key])}; {key}: median {median:.4g} {unit}; colour "
             f"{html.escape(span.describe(key, unit))}" + (f": {'; '.join(why)}" if why else "")
         )
 

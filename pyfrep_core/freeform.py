@@ -48,7 +48,7 @@ from ._array import as_tensor, check_finite, check_option, check_points, tracing
 from ._threads import intra_op_threads
 from .evaluate import call_budget
 from .model import Model, check_bounds
-from .networks import ACTIVATIONS, MAX_SEED, ImplicitNetwork, cosine_lr
+from .networks import ACTIVATIONS, MAX_SEED, ImplicitNetwork, cosine_lr, training_step
 from .progress import Event, Progress, StopFlag
 
 __all__ = ["FreeformModel", "fit_freeform"]
@@ -320,12 +320,7 @@ def fit_freeform(
             if normals_t is not None:
                 normal = (dg[:batch] + normals_t[idx]).norm(dim=1).mean()  # outward n = -grad g on the surface
                 loss = loss + normal_weight * normal
-            optimizer.zero_grad(set_to_none=True)
-            loss.backward()
-            optimizer.step()
-            schedule.step()
-            value = float(loss.detach())
-            network.history.append(value)
+            value = training_step(network, optimizer, schedule, loss)
             step_terms = {"surface": float(surface.detach()), "eikonal": float(eikonal.detach())}
             if normals_t is not None:
                 step_terms["normal"] = float(normal.detach())

@@ -40,7 +40,7 @@ from torch import nn
 from ._array import check_option
 from .model import check_bounds
 
-__all__ = ["ImplicitNetwork", "ACTIVATIONS", "INITS", "cosine_lr"]
+__all__ = ["ImplicitNetwork", "ACTIVATIONS", "INITS", "cosine_lr", "training_step"]
 
 ACTIVATIONS = ("softplus", "silu", "tanh", "relu", "leaky_relu")
 INITS = ("he", "sphere")
@@ -209,3 +209,28 @@ def cosine_lr(k: int, steps: int, warmup: int = 20) -> float:
         return (k + 1) / warmup
     t = min(1.0, (k - warmup) / max(1, steps - warmup))
     return 0.01 + 0.99 * 0.5 * (1.0 + math.cos(math.pi * t))
+
+
+def training_step(
+    network: ImplicitNetwork, optimizer: Any, schedule: Any, loss: torch.Tensor, clip_grad: float | None = None
+) -> float:
+    """One optimizer step on ``loss``: backward, optional gradient clipping, step, schedule; the loss
+    (a float) is appended to ``network.history`` and returned.
+
+    >>> net = ImplicitNetwork(((-1.0,) * 3, (1.0,) * 3), width=8, depth=1)
+    >>> opt = torch.optim.Adam(net.parameters(), lr=1e-3)
+    >>> sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda k: 1.0)
+    >>> value = training_step(net, opt, sched, net(torch.zeros(4, 3)).pow(2).mean())
+    >>> net.history == [value]
+    True
+    """
+    optimizer.zero_grad(set_to_none=True)
+    loss.backward()
+    if clip_grad is not None:
+        # a few steps with a large gradient otherwise make Adam diverge at a high learning rate
+        torch.nn.utils.clip_grad_norm_(network.parameters(), clip_grad)
+    optimizer.step()
+    schedule.step()
+    value = float(loss.detach())
+    network.history.append(value)
+    return value

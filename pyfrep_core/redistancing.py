@@ -118,7 +118,7 @@ from .diff import value_and_grad
 from .distance import MAX_RESOLUTION, surface_samples, true_distance
 from .evaluate import evaluate
 from .model import check_bounds
-from .networks import MAX_SEED, ImplicitNetwork, cosine_lr
+from .networks import MAX_SEED, ImplicitNetwork, cosine_lr, training_step
 from .progress import Event, Progress, StopFlag
 
 __all__ = ["RedistancedSDF", "redistance", "load_redistanced"]
@@ -501,15 +501,7 @@ def redistance(
             idx = torch.randint(len(pool_x), (n_pool,), generator=gen)
             fit = ((model.signed_network(pool_x[idx]) - pool_d[idx]) ** 2).mean()
             total = total + fit_weight * fit
-            optimizer.zero_grad(set_to_none=True)
-            total.backward()
-            if clip_grad is not None:
-                # a few steps with a large gradient otherwise make Adam diverge at this lr
-                torch.nn.utils.clip_grad_norm_(model.parameters(), clip_grad)
-            optimizer.step()
-            schedule.step()
-            value = float(total.detach())
-            model.history.append(value)
+            value = training_step(model, optimizer, schedule, total, clip_grad)
             if bar.update(step, value, supervised=float(fit.detach()), pde=float(pde.detach())):
                 break
     if refit:
@@ -573,14 +565,7 @@ def _train_paper(
             zero = (g[2 * n :] ** 2).mean()
             normal = ((dg[2 * n :] - inward[on]) ** 2).sum(-1).mean()
             total = eikonal * pde + weights["boundary"] * zero + weights["normal"] * normal
-            optimizer.zero_grad(set_to_none=True)
-            total.backward()
-            if clip_grad is not None:
-                torch.nn.utils.clip_grad_norm_(model.parameters(), clip_grad)
-            optimizer.step()
-            schedule.step()
-            value = float(total.detach())
-            model.history.append(value)
+            value = training_step(model, optimizer, schedule, total, clip_grad)
             if bar.update(step, value, pde=float(pde.detach()), boundary=float(zero.detach())):
                 break
 

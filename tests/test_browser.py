@@ -206,8 +206,17 @@ def test_model_typed_in_the_editor_opens_in_the_shape_view(page):
     editor = panel.locator(".pyfrep-code textarea")
     editor.wait_for(timeout=240_000)
     editor.fill(STUDENT_MODEL.rsplit("\n", 2)[0] + "\n")  # all but the last line, then type it
-    editor.press("End")
-    editor.press_sequentially("    return difference(sphere(x, r=r), cylZ(x, r=h))\n")
+    editor.press("Control+End")
+    editor.press("Tab")  # indents by 4 spaces: the focus stays in the editor
+    editor.press_sequentially("return difference(sphere(x, r=r), cylZ(x, r=h))\n")
+    assert editor.evaluate("t => t === document.activeElement")
+    assert editor.input_value() == STUDENT_MODEL
+    editor.press("Shift+Tab")  # on an empty line: nothing to dedent
+    editor.press("Control+a")
+    editor.press("Tab")  # the selection's lines indented, then dedented back
+    assert editor.input_value().splitlines()[5] == "    def student_ball(x, r, h):"
+    editor.press("Shift+Tab")
+    assert editor.input_value() == STUDENT_MODEL
     gutter, lines = panel.locator(".pyfrep-gutter pre"), str(STUDENT_MODEL.count("\n") + 1)
     deadline = time.monotonic() + 60  # the kernel renumbers the gutter as the text arrives
     while gutter.inner_text().split()[-1] != lines and time.monotonic() < deadline:

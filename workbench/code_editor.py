@@ -5,7 +5,14 @@ runs in Voila offline: ipyaceeditor and ipycodemirror do not exist there and ipy
 alpha) loads Monaco from a CDN.  So the editor is a Textarea styled as code, with a gutter
 whose lines match the text's: the Textarea grows with the text instead of scrolling and does
 not wrap lines, so line k of the gutter stays beside line k of the code.  A line can be marked
-(an error's line).  Tab moves the focus, as in any browser text box: indent with spaces.
+(an error's line).
+
+Tab indents (Python needs indentation, a browser text box would move the focus): a few lines of
+JavaScript (:data:`TAB_KEYS`), shown once through an Output widget (its outputs are trusted, in
+JupyterLab and in Voila alike), listen for Tab on the page before the Textarea does: Tab inserts
+spaces to the next multiple of 4, Tab or Shift-Tab on a selection indents or dedents its lines by
+4, Shift-Tab dedents the line.  The edit goes through the browser's own text insertion, so it
+can be undone (Ctrl-Z) and the Textarea sends the new text to the kernel as for typed keys.
 """
 
 from __future__ import annotations
@@ -13,6 +20,7 @@ from __future__ import annotations
 import html
 
 import ipywidgets as widgets
+from IPython.display import Javascript
 
 __all__ = ["CodeEditor"]
 
@@ -33,6 +41,48 @@ STYLE = f"""<style>
 .pyfrep-gutter .bad {{ background: #f4b8b8; color: #7a0000; font-weight: bold; }}
 </style>"""
 
+INDENT = 4
+# one listener for the page, in the capture phase (ipywidgets' Textarea stops the key's propagation)
+TAB_KEYS = f"""(function () {{
+  if (window.pyfrepTabKeys) return;
+  window.pyfrepTabKeys = true;
+  const unit = " ".repeat({INDENT});
+  const put = (t, a, b, text) => {{  // the browser's own insertion: undoable, fires "input"
+    t.setSelectionRange(a, b);
+    if (!document.execCommand("insertText", false, text)) {{
+      t.setRangeText(text, a, b, "end");
+      t.dispatchEvent(new Event("input", {{ bubbles: true }}));
+    }}
+  }};
+  document.addEventListener("keydown", (e) => {{
+    const t = e.target;
+    if (e.key !== "Tab" || e.ctrlKey || e.altKey || e.metaKey || !t || t.tagName !== "TEXTAREA") return;
+    if (!t.closest(".pyfrep-code")) return;
+    e.preventDefault();
+    e.stopPropagation();
+    const v = t.value, s = t.selectionStart, end = t.selectionEnd;
+    const first = v.lastIndexOf("\\n", s - 1) + 1;
+    if (s === end && !e.shiftKey) {{  // spaces to the next multiple of {INDENT}
+      put(t, s, s, " ".repeat({INDENT} - ((s - first) % {INDENT})));
+      return;
+    }}
+    let last = end > s && v[end - 1] === "\\n" ? end - 1 : end;  // a selection ending at a line start
+    const stop = v.indexOf("\\n", last);
+    last = stop < 0 ? v.length : stop;
+    const lines = v.slice(first, last).split("\\n");
+    const moved = lines.map((l) => (e.shiftKey ? l.replace(/^ {{1,{INDENT}}}/, "") : unit + l));
+    const text = moved.join("\\n");
+    if (text === v.slice(first, last)) return;
+    put(t, first, last, text);
+    if (s === end) {{  // Shift-Tab without a selection: the caret stays on its text
+      const at = Math.max(first, s - (lines[0].length - moved[0].length));
+      t.setSelectionRange(at, at);
+    }} else {{
+      t.setSelectionRange(first, first + text.length);
+    }}
+  }}, true);
+}})();"""
+
 
 class CodeEditor(widgets.HBox):
     """A monospace text box with line numbers.
@@ -46,6 +96,7 @@ class CodeEditor(widgets.HBox):
     Attributes
     ----------
     text : the Textarea (``text.value`` is the code).   gutter : the line numbers (HTML).
+    tab_keys : the Output that makes Tab and Shift-Tab indent and dedent (:data:`TAB_KEYS`).
     marked : the line marked (1-based), or None.
 
     Examples
@@ -69,7 +120,11 @@ class CodeEditor(widgets.HBox):
         self.gutter = widgets.HTML()
         self.gutter.add_class("pyfrep-gutter")
         style = widgets.HTML(STYLE, layout=widgets.Layout(width="0px", height="0px", overflow="hidden"))
-        super().__init__([style, self.gutter, self.text], layout=widgets.Layout(align_items="flex-start"))
+        self.tab_keys = widgets.Output(layout=widgets.Layout(width="0px", height="0px", overflow="hidden"))
+        self.tab_keys.append_display_data(Javascript(TAB_KEYS))  # Tab indents (module docstring)
+        super().__init__(
+            [style, self.tab_keys, self.gutter, self.text], layout=widgets.Layout(align_items="flex-start")
+        )
         self.text.observe(self._edited, names="value")
         self._edited()
 

@@ -130,6 +130,29 @@ def test_stop_during_training_stops_it_and_says_where():
     assert f"stopped early at step {last.step + 1}" in p.status.value
 
 
+def test_the_papers_training_is_offered_says_what_it_trains_on_and_stops(monkeypatch):
+    import pyfrep_core.redistancing as redistancing
+
+    main = QueuedMain()
+    p = _redistance_panel(main)
+    assert p.mode.value == "supervised" and "labels" in p.mode_help.value
+    p.mode.value = "paper"
+    assert "eq. 9" in p.mode_help.value and "from f alone" in p.mode_help.value
+    modes = []
+    real = redistancing.redistance
+    monkeypatch.setattr(redistancing, "redistance", lambda *a, **k: modes.append(k["mode"]) or real(*a, **k))
+    run = p.start(steps=100_000, every=1)
+    while len(p.events) < 5:
+        time.sleep(0.01)
+    p.stop()
+    run._thread.join(60)
+    assert not run.running and modes == ["paper"]
+    main.drain()
+    last = p.events[-1]
+    assert last.step + 1 < 1000
+    assert "paper: eikonal, no labels" in p.status.value and f"stopped early at step {last.step + 1}" in p.status.value
+
+
 # -- 3. curvature: undefined points grey and counted, robust range, one-sided when one-signed --------
 def test_curvature_of_the_fig1_part_counts_its_creases_and_keeps_them_out_of_the_range():
     p = CurvaturePanel({"fig1_part": fig1_part}, resolution=48, backend="image", threaded=False)

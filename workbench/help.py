@@ -37,9 +37,9 @@ HELP: dict[str, str] = {
     "Redistancing": (
         "Training a network h so that d(x) = sign(f(x)) h(x) is the signed distance to f = 0 (paper section 5.3): "
         "the loss is the eikonal residual E(|&nabla;d| &minus; 1)&sup2; over the box (eq. 9); the default "
-        "also fits distances sampled near the surface (labels), the paper's mode uses only f. The sign of f keeps "
-        "the surface exactly where it is. The slices compare f and d with the true distance (the pawn: "
-        "Figs. 7 and 8). Stop ends the training early."
+        "also fits distances sampled near the surface (labels), the paper's mode (menu <i>training</i>) uses "
+        "only f. The sign of f keeps the surface exactly where it is. The slices compare f and d with the "
+        "true distance (the pawn: Figs. 7 and 8). Stop ends the training early."
     ),
     "Fitting": (
         "Recovering a model's parameters p from points x<sub>i</sub> measured on a surface (section 5.4). The "

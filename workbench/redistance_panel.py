@@ -1,8 +1,9 @@
 """Redistancing panel: train a network to the signed distance of a model, watch the loss live.
 
-Training is ``pyfrep_core.redistancing.redistance(f, bounds, callback=, stop=, progress=)`` on a
-background thread (Stop sets its ``stop`` flag); its events feed a log-scale loss chart and a
-progress bar.  When it ends, slices of f and of the trained distance are drawn side by side
+Training is ``pyfrep_core.redistancing.redistance(f, bounds, mode=, callback=, stop=, progress=)``
+on a background thread (Stop sets its ``stop`` flag), in the mode chosen in the panel (the
+default, with distance labels, or the paper's, from f alone: :data:`MODES`); its events feed a
+log-scale loss chart and a progress bar.  When it ends, slices of f and of the trained distance are drawn side by side
 with the error against the true distance (3-D models), and the network is offered to the
 slice panel (``on_trained`` callbacks).
 """
@@ -10,7 +11,6 @@ slice panel (``on_trained`` callbacks).
 from __future__ import annotations
 
 import html
-import inspect
 import os
 import time
 from collections.abc import Callable
@@ -25,7 +25,22 @@ from ._threads import BackgroundRun, MainThread
 from .charts import LineChart
 from .slice_panel import AXES, draw_slices, field_functions, plane_points
 
-__all__ = ["RedistancePanel", "redistance_panel", "trained_network"]
+__all__ = ["MODES", "RedistancePanel", "redistance_panel", "trained_network"]
+
+# redistance's modes as the panel offers them: menu label, and what the mode trains on
+MODES: dict[str, tuple[str, str]] = {
+    "supervised": (
+        "with distance labels",
+        "the eikonal loss (eq. 9) as a light regularizer plus distances to the surface computed beforehand "
+        "(labels): accurate in seconds, but not the paper's training",
+    ),
+    "paper": (
+        "paper: eikonal, no labels",
+        "the paper's training (section 5.3): the eikonal loss (eq. 9) over the box and near the surface, d = 0 "
+        "and &nabla;d = &minus;&nabla;f/|&nabla;f| on points of f = 0, every target from f alone; slower to "
+        "converge",
+    ),
+}
 
 
 def trained_network(result: Any) -> Callable:
@@ -75,6 +90,14 @@ class RedistancePanel(widgets.VBox):
         lay = widgets.Layout(width="320px")
         self.model_choice = widgets.Dropdown(options=list(self.models), description="model", layout=lay)
         self.bounds = widgets.HTML()
+        self.mode = widgets.Dropdown(
+            options=[(label, name) for name, (label, _) in MODES.items()],
+            value="supervised",
+            description="training",
+            tooltip="what the network is trained on (redistance's mode)",
+            layout=lay,
+        )
+        self.mode_help = widgets.HTML(layout=widgets.Layout(width="320px"))
         self.train_button = widgets.Button(description="Train", button_style="success")
         self.stop_button = widgets.Button(description="Stop", button_style="danger", disabled=True)
         self.bar = widgets.IntProgress(value=0, min=0, max=1, layout=widgets.Layout(width="300px"))
@@ -96,6 +119,8 @@ class RedistancePanel(widgets.VBox):
         # hidden until the first slices (an empty Image shows a broken-image icon)
         self.slices = widgets.Image(format="png", layout=widgets.Layout(align_self="flex-start", display="none"))
         self.model_choice.observe(lambda _: self._show_bounds(), names="value")
+        self.mode.observe(lambda _: self._show_mode(), names="value")
+        self._show_mode()
         self.train_button.on_click(lambda _: self.start())
         self.stop_button.on_click(lambda _: self.stop())
         self._show_bounds()
@@ -103,6 +128,8 @@ class RedistancePanel(widgets.VBox):
             [
                 self.model_choice,
                 self.bounds,
+                self.mode,
+                self.mode_help,
                 widgets.HBox([self.train_button, self.stop_button]),
                 self.bar,
                 self.progress_text,
@@ -119,6 +146,10 @@ class RedistancePanel(widgets.VBox):
         lo, hi = self.model.bounds
         self.bounds.value = f"<small>bounds {tuple(lo)} to {tuple(hi)}</small>"
 
+    def _show_mode(self) -> None:
+        text = MODES[self.mode.value][1]
+        self.mode_help.value = f"<div style='font-size:12px;line-height:1.3;color:#333'>{text}</div>"
+
     # -- training -----------------------------------------------------------------------------
     def start(self, **overrides: Any) -> BackgroundRun | None:
         """Train on a background thread; returns the run (``.wait()`` blocks until it ends)."""
@@ -130,14 +161,13 @@ class RedistancePanel(widgets.VBox):
             self._error(err, "redistancing not available yet")
             return None
         model = self.model
-        settings = {**self.settings, **overrides}
-        accepted = inspect.signature(redistance).parameters
-        if not any(p.kind is p.VAR_KEYWORD for p in accepted.values()):
-            settings = {k: v for k, v in settings.items() if k in accepted}
+        settings = {"mode": self.mode.value, **self.settings, **overrides}
         self.events, self._offsets, self._next_x, self._first_loss = [], {}, 0, None
         self.loss_chart.clear()
         self.train_button.disabled, self.stop_button.disabled = True, False
-        self.status.value = f"training a distance network for {html.escape(model.__name__)}..."
+        how = MODES[settings["mode"]][0] if settings["mode"] in MODES else settings["mode"]
+        self._how = how
+        self.status.value = f"training a distance network for {html.escape(model.__name__)} ({how})..."
         self._t0 = time.perf_counter()
 
         def target(stop: Any) -> Any:
@@ -238,7 +268,7 @@ class RedistancePanel(widgets.VBox):
         stopped = f" (stopped early at step {last.step + 1 if last else 0})" if early else ""
         err = "".join(f"; |{k} - d| mean {m:.3g}, max {x:.3g}" for k, (m, x) in errors.items())
         self.status.value = (
-            f"<span class='train-done'>trained in {time.perf_counter() - self._t0:.1f} s{stopped}{err} "
+            f"<span class='train-done'>trained in {time.perf_counter() - self._t0:.1f} s, {self._how}{stopped}{err} "
             f"(slice {AXES[2]} = middle)</span>"
         )
 

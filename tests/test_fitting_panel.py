@@ -45,6 +45,12 @@ def framed_points(p: FittingPanel) -> tuple[np.ndarray, float]:
     return focal, float(np.linalg.norm(np.asarray(cam.position) - focal))
 
 
+def camera(p: FittingPanel) -> np.ndarray:
+    """(9,) the camera's position, focal point and up direction."""
+    cp = p.view.plotter.camera_position
+    return np.array([*cp.position, *cp.focal_point, *cp.viewup])
+
+
 def test_the_options_become_fit_settings():
     p = FittingPanel({"plate": plate}, n_points=50, backend="image")
     try:
@@ -112,6 +118,30 @@ def test_a_new_model_clears_the_previous_fit_and_the_camera_follows(panel):
     p.start(**POLISH, init=near(p.truth))
     result = p.wait()
     assert result.params["a"] == pytest.approx(p.truth["a"], abs=0.05) and p.view.actor.visibility
+
+
+def test_the_users_camera_stays_over_new_clouds_and_fits_until_the_model_changes(panel):
+    p = panel
+    cam = p.view.plotter.camera
+    cam.azimuth += 50.0  # the user turns the view and zooms in
+    cam.zoom(1.5)
+    turned = camera(p)
+    p.seed.value = 5
+    p.make_cloud()  # "New cloud": the same model, the same place
+    assert np.allclose(camera(p), turned)
+    p.start(**POLISH, init=near(p.truth))
+    p.wait()
+    assert p.view.actor.visibility and np.allclose(camera(p), turned)
+    p.moved.value = True  # a random pose takes the cloud out of the framed box: framed again
+    p.make_cloud()
+    assert not np.allclose(camera(p), turned)
+    focal, _ = framed_points(p)
+    assert np.linalg.norm(focal - (p.points.min(0) + p.points.max(0)) / 2) < 0.5
+    p.moved.value = False
+    p.model_choice.value = "big_plate"  # a new model: framed, whatever the user did
+    p.main.drain()
+    focal, _ = framed_points(p)
+    assert np.linalg.norm(focal - (p.points.min(0) + p.points.max(0)) / 2) < 1.0
 
 
 def test_an_uploaded_mesh_is_named_in_the_status_and_fitted(panel, tmp_path):

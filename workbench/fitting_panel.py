@@ -9,7 +9,9 @@ outliers the robust loss found drawn apart in red, the fitted surface overlaid, 
 values with their standard errors beside the true ones.
 
 What a new model or a new cloud replaces: the charts, the progress bar, the table and the
-fitted surface of the previous fit are cleared, and the camera frames the new data.
+fitted surface of the previous fit are cleared.  The camera frames the data of a new model or
+file; after that it stays where the user turned it (a new cloud of the same model, a fit's
+result), unless the new cloud leaves the box it framed or is much smaller (a new random pose).
 """
 
 from __future__ import annotations
@@ -133,6 +135,7 @@ class FittingPanel(widgets.VBox):
         self._next_x = 0
         self._first_loss: float | None = None
         self._generation = 0  # bumped when the data or model changes: a late fit of old data is not drawn
+        self._framed: np.ndarray | None = None  # (2, 3) box of the cloud the camera was last fitted to
 
         lay = widgets.Layout(width="300px")
         self.model_choice = widgets.Dropdown(options=list(self.models), description="model", layout=lay)
@@ -220,13 +223,17 @@ class FittingPanel(widgets.VBox):
         if self.source.value == "file" and self.points is not None:
             self._reset()
             self.truth = None
-            self._show_cloud()
+            self._show_cloud(frame=True)
             self.status.value = f"model {html.escape(self.model.__name__)}; data {html.escape(self.data_name)}"
         else:
-            self.make_cloud()
+            self.make_cloud(frame=True)
 
-    def make_cloud(self) -> None:
-        """Sample the chosen model at hidden parameter values (plus noise, pose and outliers) and show the cloud."""
+    def make_cloud(self, frame: bool = False) -> None:
+        """Sample the chosen model at hidden parameter values (plus noise, pose and outliers) and show the cloud.
+
+        ``frame``: fit the camera to the cloud (a new model); otherwise the user's camera is kept
+        while the cloud stays within the box it framed.
+        """
         from pyfrep_core.sampling import sample_surface
 
         seed = int(self.seed.value)
@@ -255,7 +262,7 @@ class FittingPanel(widgets.VBox):
         self.points, self.data, self.truth, self.planted = pts, pts, truth, planted
         self.data_name = "generated cloud"
         self.source.value = "generated"
-        self._show_cloud()
+        self._show_cloud(frame=frame)
         moved = ", moved to a random pose" if self.true_pose else ""
         stray = f", {n_out} outliers" if n_out else ""
         self.status.value = f"{len(pts)} points sampled at hidden parameters (noise {self.noise.value:g}{moved}{stray})"
@@ -297,7 +304,7 @@ class FittingPanel(widgets.VBox):
         self.points, self.data, self.data_name = points, data, name
         self.truth, self.true_pose, self.planted = None, None, None
         self.source.value = "file"
-        self._show_cloud()
+        self._show_cloud(frame=True)
         self.status.value = what
 
     def _uploaded(self) -> None:
@@ -331,12 +338,26 @@ class FittingPanel(widgets.VBox):
         self.view.hide_surface()
         self.view.overlay_points(None, name="outliers")
 
-    def _show_cloud(self) -> None:
-        """The data alone (the stale surface hidden), the camera framing it."""
+    def _show_cloud(self, frame: bool = False) -> None:
+        """The data alone (the stale surface hidden); the camera framing it when asked or needed."""
+        camera = self.view.plotter.camera_position
         self.view.hide_surface()
         self.view.overlay_points(None, name="outliers")
         self.view.overlay_points(self.points)
-        self.view.render(reset_camera=True)
+        lo, hi = self.points.min(0), self.points.max(0)
+        if frame or self._framed is None or self._outgrown(lo, hi):
+            self.view.render(reset_camera=True)
+            self._framed = np.array([lo, hi])
+        else:
+            self.view.plotter.camera_position = camera  # the user's, whatever the view did meanwhile
+            self.view.render()
+
+    def _outgrown(self, lo: np.ndarray, hi: np.ndarray) -> bool:
+        """The cloud (box lo..hi) leaves the framed box by over 5 % of its size, or is under half its size."""
+        old_lo, old_hi = self._framed
+        size = float(np.linalg.norm(old_hi - old_lo))
+        outside = bool(np.any(lo < old_lo - 0.05 * size) or np.any(hi > old_hi + 0.05 * size))
+        return outside or float(np.linalg.norm(hi - lo)) < 0.5 * size
 
     # -- running ------------------------------------------------------------------------------
     def settings(self, **overrides: Any) -> dict[str, Any]:
@@ -463,15 +484,17 @@ class FittingPanel(widgets.VBox):
         what = "distance to the fit" if result.residual == "geometric" else "absolute residual f"
         kept = distance[inliers]
         top = float(np.percentile(kept, 99)) if len(kept) else 1.0
+        camera = self.view.plotter.camera_position  # the cloud is framed already: the user's camera stays
         if surface.is_empty():
             self.view.hide_surface()
         else:
-            self.view.update(surface, reset_camera=True)  # plain grey: the cloud's colours own the bar
+            self.view.update(surface)  # plain grey: the cloud's colours own the bar
             self.view.set_opacity(0.45)
         self.view.overlay_points(shown[inliers], distance[inliers], f"{what}{unit}", clim=(0.0, top), bar=True)
         n_out = int((~inliers).sum())
         self.view.overlay_points(shown[~inliers] if n_out else None, name="outliers", color=OUTLIER_COLOUR)
-        self.view.render(reset_camera=surface.is_empty())
+        self.view.plotter.camera_position = camera
+        self.view.render()
         self.table.value = self._table(result)
         first = "" if self._first_loss is None else f" (first {self._first_loss:.3e})"
         self.progress_text.value = (  # the last word on the run: no stale 'polish 3/20'

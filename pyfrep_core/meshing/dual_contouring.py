@@ -42,6 +42,7 @@ from typing import Any
 
 import numpy as np
 import torch
+from scipy import sparse
 
 from ..model import check_bounds
 from ..progress import Progress
@@ -258,25 +259,25 @@ def _contour(
         comp = _COMPONENT[s.config[pos], local].astype(np.int64)
         found &= comp >= 0
         vert[found, q] = first_vertex[pos[found]] + comp[found]
-    # QEF per vertex from its edges: A^T A (6 entries), A^T b, mass point
-    # per edge: the products once (E values each), added to the vertex of each of its four cells
+    # QEF per vertex from its edges: A^T A (6 entries), A^T b, mass point; the per-edge products
+    # (E, 13) summed into the vertices of their up to four cells by one sparse incidence product
     d = np.einsum("ij,ij->i", normal, points)
     pairs = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
-    terms = [normal[:, i] * normal[:, j] for i, j in pairs] + [normal[:, i] * d for i in range(3)]
-    terms += [points[:, i] for i in range(3)] + [np.ones(len(d))]
-    sums = np.zeros((len(terms), n_vert))
-    for q in range(4):
-        has = np.flatnonzero(vert[:, q] >= 0)
-        target = vert[has, q]
-        for k, term in enumerate(terms):
-            sums[k] += np.bincount(target, weights=term[has], minlength=n_vert)
+    terms = np.empty((len(d), 13))
+    for k, (i, j) in enumerate(pairs):
+        np.multiply(normal[:, i], normal[:, j], out=terms[:, k])
+    np.multiply(normal, d[:, None], out=terms[:, 6:9])
+    terms[:, 9:12] = points
+    terms[:, 12] = 1.0
+    sums = _incidence(vert, n_vert) @ terms
+    del terms
     ata = np.empty((n_vert, 3, 3))
     for k, (i, j) in enumerate(pairs):
-        ata[:, i, j] = ata[:, j, i] = sums[k]
-    atb = sums[6:9].T.copy()
-    mass = sums[9:12].T.copy()
-    count = sums[12]
-    del sums, terms
+        ata[:, i, j] = ata[:, j, i] = sums[:, k]
+    atb = sums[:, 6:9].copy()
+    mass = sums[:, 9:12].copy()
+    count = sums[:, 12].copy()
+    del sums
     mass /= np.maximum(count, 1.0)[:, None]
     # the vertices' cells
     vcell = np.repeat(s.cell, n_comp, axis=0)
@@ -305,6 +306,16 @@ def _contour(
     faces = index[faces]
     _, gradient = _value_and_grad(f, x, device)
     return Mesh(x, faces, _normals(gradient, x, faces), gradient=gradient)
+
+
+def _incidence(vert: np.ndarray, n_vert: int) -> sparse.csc_matrix:
+    """(V, E) matrix with a 1 where edge e's column lists vertex v (``vert`` (E, 4), -1: none): built
+    column by column without sorting."""
+    has = vert >= 0
+    indptr = np.zeros(len(vert) + 1, dtype=np.int64)
+    np.cumsum(has.sum(axis=1), out=indptr[1:])
+    rows = vert[has]
+    return sparse.csc_matrix((np.ones(len(rows)), rows, indptr), shape=(n_vert, len(vert)))
 
 
 def _solve_qef(

@@ -333,15 +333,21 @@ def _solve_qef(
     rank = np.ones(len(x), dtype=np.int64)
     # smooth patches first, without an eigendecomposition: power iteration from the largest column
     # gives the top eigenpair; its Rayleigh quotient q <= l1, so trace - q >= l2 + l3 bounds l2
-    column = np.einsum("vii->vi", ata).argmax(axis=1)
-    v = ata[np.arange(len(x)), :, column]
+    # (on the entries' columns, each contiguous: einsum over (V, 3, 3) costs several times more)
+    a = [[np.ascontiguousarray(ata[:, i, j]) for j in range(3)] for i in range(3)]
+    column = np.stack([a[0][0], a[1][1], a[2][2]]).argmax(axis=0)
+    v = [np.choose(column, a[i]) for i in range(3)]
     for _ in range(4):
-        v = np.einsum("vij,vj->vi", ata, v)
-        v /= np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-300)
-    q = np.einsum("vi,vij,vj->v", v, ata, v)
-    trace = np.einsum("vii->v", ata)
+        v = [a[i][0] * v[0] + a[i][1] * v[1] + a[i][2] * v[2] for i in range(3)]
+        scale = 1.0 / np.maximum(np.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]), 1e-300)
+        v = [vi * scale for vi in v]
+    av = [a[i][0] * v[0] + a[i][1] * v[1] + a[i][2] * v[2] for i in range(3)]
+    q = v[0] * av[0] + v[1] * av[1] + v[2] * av[2]
+    trace = a[0][0] + a[1][1] + a[2][2]
     flat = (trace - q <= SINGULAR_CUTOFF * q) & (q > 0)
-    x[flat] += v[flat] * (np.einsum("vi,vi->v", v[flat], rhs[flat]) / q[flat])[:, None]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.where(flat, (v[0] * rhs[:, 0] + v[1] * rhs[:, 1] + v[2] * rhs[:, 2]) / q, 0.0)
+    x += np.stack(v, axis=1) * t[:, None]
     rest = np.flatnonzero(~flat)
     if len(rest):
         w, u = np.linalg.eigh(ata[rest])
@@ -425,16 +431,21 @@ def _unbias(
     if len(tri) == 0:
         return x
     length = np.linalg.norm(gradient, axis=1)
-    centroid = x[tri].mean(axis=1)
+    corners = [tri[:, k].copy() for k in range(3)]  # 1-D gathers per coordinate (fancy (F, 3, 3) ones cost more)
+    centroid = np.empty((len(tri), 3))
+    for i in range(3):
+        column = np.ascontiguousarray(x[:, i])
+        centroid[:, i] = (column[corners[0]] + column[corners[1]] + column[corners[2]]) / 3.0
     with np.errstate(divide="ignore", invalid="ignore"):
-        depth = _f64(f, centroid, device) / length[tri].mean(axis=1)  # > 0: the centroid is inside
+        mean_length = (length[corners[0]] + length[corners[1]] + length[corners[2]]) / 3.0
+        depth = _f64(f, centroid, device) / mean_length  # > 0: the centroid is inside
     depth = np.where(np.isfinite(depth), depth, 0.0)
     n = len(x)
     total = np.zeros(n)
     count = np.zeros(n)
     for k in range(3):
-        total += np.bincount(tri[:, k], weights=depth, minlength=n)
-        count += np.bincount(tri[:, k], minlength=n)
+        total += np.bincount(corners[k], weights=depth, minlength=n)
+        count += np.bincount(corners[k], minlength=n)
     move = np.flatnonzero(count > 0)
     shift = 0.75 * total[move] / count[move]
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -450,8 +461,10 @@ def _triangulate(
     """Two triangles per quad (Q, 4) (counter-clockwise seen from outside; ``direction`` (Q, 3) the
     outward axis): the diagonal whose triangles both face outward (the better of the two otherwise).
     Where neither does, the quad's vertices go back to their mass points (up to three rounds)."""
+    direction = [np.ascontiguousarray(direction[:, i]) for i in range(3)]
     for _ in range(4):
-        v = [x[quads[:, k]] for k in range(4)]
+        columns = [np.ascontiguousarray(x[:, i]) for i in range(3)]  # coordinates apart: 1-D gathers
+        v = [[column[quads[:, k]] for column in columns] for k in range(4)]
         score = []
         for t1, t2 in (((0, 1, 2), (0, 2, 3)), ((1, 2, 3), (1, 3, 0))):
             s1 = _facing(v[t1[0]], v[t1[1]], v[t1[2]], direction)
@@ -474,10 +487,13 @@ def _triangulate(
     return faces[keep], x
 
 
-def _facing(a: np.ndarray, b: np.ndarray, c: np.ndarray, direction: np.ndarray) -> np.ndarray:
-    """Cosine between the triangle's right-hand normal and ``direction`` (-1 for a zero-area one)."""
-    n = np.cross(b - a, c - a)
-    length = np.linalg.norm(n, axis=1)
+def _facing(a: list, b: list, c: list, direction: list) -> np.ndarray:
+    """Cosine between the triangle's right-hand normal and ``direction`` (-1 for a zero-area one);
+    each argument is three coordinate arrays (Q,)."""
+    u = [b[i] - a[i] for i in range(3)]
+    w = [c[i] - a[i] for i in range(3)]
+    n = [u[(i + 1) % 3] * w[(i + 2) % 3] - u[(i + 2) % 3] * w[(i + 1) % 3] for i in range(3)]
+    length = np.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2])
     with np.errstate(divide="ignore", invalid="ignore"):
-        cos = np.einsum("ij,ij->i", n, direction) / length
+        cos = (n[0] * direction[0] + n[1] * direction[1] + n[2] * direction[2]) / length
     return np.where(length > 0, cos, -1.0)

@@ -127,3 +127,62 @@ def test_shape_panel_click_then_pull_moves_the_slider():
         assert panel.sliders["r"].value == 0.2 and "r at a bound" in pp.status.value
     finally:
         panel.view.close()
+
+
+@model(bounds=((-1.2,) * 3, (1.2,) * 3), r=Param(0.8, 0.5, 1.0))
+def ball(x, r):
+    return sphere(x, r=r)
+
+
+def _display(plotter, point):
+    """Display coordinates (float, origin bottom left) of a world point."""
+    ren = plotter.renderer
+    ren.SetWorldPoint(*point, 1.0)
+    ren.WorldToDisplay()
+    return np.array(ren.GetDisplayPoint()[:2])
+
+
+def _looking(plotter):
+    """The camera's unit viewing direction."""
+    d = np.subtract(plotter.camera.focal_point, plotter.camera.position)
+    return d / np.linalg.norm(d)
+
+
+def test_dragging_the_surface_pulls_it_by_the_mouse_travel_along_the_normal():
+    from workbench.shape_panel import ShapePanel
+
+    panel = ShapePanel(ball, resolution=48, backend="image", threaded=False, compiled=False)
+    try:
+        pp, plotter = panel.push_pull, panel.view.plotter
+        n = np.array([1.0, 1.0, -0.5]) / 1.5  # 55 degrees off the isometric line of sight: seen, and across
+        point = 0.8 * n
+        start = _pixel(plotter, point)
+        # off: a drag turns the camera and picks nothing
+        before = _looking(plotter)
+        pp.drag_mouse(start, (start[0] + 40, start[1]))
+        assert pp.point is None and not np.allclose(_looking(plotter), before)
+        panel.view.render(reset_camera=True)
+        # on: a press on the surface picks there; the pull is the travel along the normal's screen direction
+        pp.drag.value = True
+        start = _pixel(plotter, point)
+        h = 1e-4
+        along = (_display(plotter, point + h * n) - _display(plotter, point)) / h  # pixels per unit, on screen
+        end = np.round(start + 20 * along / np.linalg.norm(along)).astype(int)
+        expected = float(np.dot(end - start, along / np.linalg.norm(along))) / np.linalg.norm(along)
+        looking = _looking(plotter)
+        pp.drag_mouse(start, tuple(end))
+        assert np.linalg.norm(pp.point - point) < 0.02  # the pixel's point, a mesh facet off the sphere
+        # the camera did not turn (it may back off: the view keeps a grown surface in frame)
+        assert np.allclose(_looking(plotter), looking)
+        # rounded to the slider's step; the perspective's change of scale along 20 px adds under 2 %
+        assert pp.pull.value == pytest.approx(expected, abs=pp.pull.step / 2 + 0.02 * expected)
+        assert 0.05 < pp.pull.value < 0.2  # dragged outward: the ball grows
+        # the sphere's radius moves by exactly the pull: the surface passes through the dragged-to point
+        assert panel.sliders["r"].value == pytest.approx(0.8 + pp.pull.value, abs=1e-6)
+        assert panel.last_job["params"]["r"] == pytest.approx(0.8 + pp.pull.value, abs=1e-6)
+        # a press beside the shape still turns the camera, and picks nothing new
+        picked = pp.point.copy()
+        pp.drag_mouse((3, 3), (40, 3))
+        assert not np.allclose(_looking(plotter), looking) and np.array_equal(pp.point, picked)
+    finally:
+        panel.view.close()

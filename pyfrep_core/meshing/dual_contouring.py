@@ -36,9 +36,10 @@ accurate as projected marching cubes.
 
 from __future__ import annotations
 
+import contextlib
 import warnings
 from collections.abc import Callable
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import torch
@@ -55,6 +56,7 @@ __all__ = ["dual_contour", "SINGULAR_CUTOFF", "LEAF_BLOCK"]
 
 SINGULAR_CUTOFF = 0.05  # relative eigenvalue of A^T A below which a direction is free (a crease of > 25 degrees stays)
 LEAF_BLOCK = 4  # cells per leaf block edge: the octree's finest interval test
+SLAB_BLOCKS = 1 << 14  # leaf blocks sampled and contoured at a time (memory: about 200 MB of Hermite data)
 
 
 # ----------------------------------------------------------------------------- cube tables
@@ -180,20 +182,46 @@ def dual_contour(
     block = tree.block
     if not tree.certified:
         _check_memory(res, dtype)  # every block is sampled: the dense grid's memory
-    n_chunks = -(-len(tree.blocks) // max(1, (1 << 15) // (block + 1) ** 3))
-    if progress is None:
-        samples = sample_blocks(f, axes, tree.blocks, block, dtype, device) if len(tree.blocks) else None
-        stopped = False
-    else:
-        with progress(max(n_chunks, 1)) as bar:
-            samples = sample_blocks(f, axes, tree.blocks, block, dtype, device, bar) if len(tree.blocks) else None
-            stopped = bar.stopped
-    if stopped:
-        return Mesh(np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64), np.zeros((0, 3)))
-    if samples is None or len(samples.f0) == 0:
+    slabs = _slabs(tree.blocks, block, cells[0])
+    n_chunks = sum(-(-len(part) // max(1, (1 << 15) // (block + 1) ** 3)) for part, _, _ in slabs)
+    empty = Mesh(np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64), np.zeros((0, 3)))
+    with progress(max(n_chunks, 1)) if progress is not None else contextlib.nullcontext() as bar:
+        # slab by slab of whole block layers along x: the memory of the samples and of their Hermite
+        # data stays bounded; one layer of cells (their vertices) is carried to the next slab
+        parts, carry, step = [], None, 0
+        for part, first, end in slabs:
+            samples = sample_blocks(f, axes, part, block, dtype, device, bar, step)
+            if samples is None:
+                return empty
+            step += -(-len(part) // max(1, (1 << 15) // (block + 1) ** 3))
+            if len(samples.f0) == 0:
+                carry = None
+                continue
+            offset = sum(len(p.x) for p in parts)
+            piece, carry = _slab(f, samples, carry, first, end, offset, lo, hi, spacing, cells, device, tol)
+            parts.append(piece)
+    if not parts or sum(len(p.quads) for p in parts) == 0:
         warnings.warn("polygonize: f does not change sign inside the bounds; empty mesh", RuntimeWarning, stacklevel=2)
-        return Mesh(np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64), np.zeros((0, 3)))
-    return _contour(f, samples, lo, hi, spacing, cells, device, tol)
+        return empty
+    return _contour(f, _Vertices(*(np.concatenate(column) for column in zip(*parts))), lo, spacing, cells, device)
+
+
+def _slabs(blocks: np.ndarray, block: int, ncell_x: int) -> list[tuple[np.ndarray, int, int]]:
+    """The leaf blocks in slabs of whole layers along x of at most ``SLAB_BLOCKS`` blocks (at least
+    one layer), each with its first cell layer and the end of its cell layers."""
+    order = np.argsort(blocks[:, 0], kind="stable")
+    blocks = blocks[order]
+    layer, start = np.unique(blocks[:, 0], return_index=True)
+    bounds = np.append(start, len(blocks))
+    out, first = [], 0
+    while first < len(layer):
+        last = first + 1
+        while last < len(layer) and bounds[last + 1] - bounds[first] <= SLAB_BLOCKS:
+            last += 1
+        part = blocks[bounds[first] : bounds[last]]
+        out.append((part, int(layer[first]) * block, min(int(layer[last - 1] + 1) * block, ncell_x)))
+        first = last
+    return out
 
 
 def _hermite(
@@ -225,22 +253,60 @@ def _hermite(
     return points, normal
 
 
-def _contour(
+class _Vertices(NamedTuple):
+    """One slab's vertices and the quads of the crossing edges it owns (global vertex indices).
+
+    x, mass, gradient (NaN where not smooth-projected), cell_lo, cell_hi : (V, 3) per vertex;
+    quads : (Q, 4) int64 counter-clockwise about +axis; axis : (Q,) the edges' axes;
+    inside_start : (Q,) bool f > 0 at the edge's start; node : (Q, 3) its start node; points : (Q, 3)
+    the edge's root.
+    """
+
+    x: np.ndarray
+    mass: np.ndarray
+    gradient: np.ndarray
+    cell_lo: np.ndarray
+    cell_hi: np.ndarray
+    quads: np.ndarray
+    axis: np.ndarray
+    inside_start: np.ndarray
+    node: np.ndarray
+    points: np.ndarray
+
+
+def _slab(
     f: Callable,
     s: Samples,
+    carry: tuple[np.ndarray, np.ndarray, np.ndarray] | None,
+    first: int,
+    end: int,
+    offset: int,
     lo: np.ndarray,
     hi: np.ndarray,
     spacing: np.ndarray,
     cells: tuple[int, int, int],
     device: Any,
     tol: float | None,
-) -> Mesh:
+) -> tuple[_Vertices, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Vertices of the mixed cells of the slab of cell layers [first, end) along x, numbered from
+    ``offset``, and the quads of the crossing edges that start in it (node x in [first, end)).
+
+    ``s`` holds every edge of these cells (their blocks' nodes reach layer ``end``); ``carry`` is
+    the previous slab's last cell layer (flat keys, global first vertex, configuration), whose
+    vertices the quads of edges on layer ``first`` need.  Returns the slab's last layer as the next carry.
+    """
     points, normal = _hermite(f, s, lo, spacing, device, tol)
     ncell = np.asarray(cells, dtype=np.int64)
     # vertices: one per (cell, component)
     n_comp = _N_COMPONENTS[s.config].astype(np.int64)
     first_vertex = np.concatenate([[0], np.cumsum(n_comp)])
     n_vert = int(first_vertex[-1])
+    # the cells to look edges' neighbours up in: the carried layer (keys below the slab's), then the slab's
+    if carry is None:
+        carry = (np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.uint8))
+    keys = np.concatenate([carry[0], s.cell_key])
+    config = np.concatenate([carry[2], s.config])
+    base = np.concatenate([carry[1], first_vertex[:-1] + offset])  # global first vertex of each cell
     # the up to four cells around each crossing edge, and the vertex of the edge's component there
     a = s.edge_axis
     b, c = (a + 1) % 3, (a + 2) % 3
@@ -252,15 +318,15 @@ def _contour(
         cell[rows, c] -= dc
         inside = ((cell >= 0) & (cell < ncell)).all(axis=1)
         key = (cell[:, 0] * ncell[1] + cell[:, 1]) * ncell[2] + cell[:, 2]
-        pos = np.searchsorted(s.cell_key, key)
-        pos = np.minimum(pos, len(s.cell_key) - 1)
-        found = inside & (s.cell_key[pos] == key)
+        pos = np.searchsorted(keys, key)
+        pos = np.minimum(pos, len(keys) - 1)
+        found = inside & (keys[pos] == key)
         local = 4 * a + db + 2 * dc
-        comp = _COMPONENT[s.config[pos], local].astype(np.int64)
+        comp = _COMPONENT[config[pos], local].astype(np.int64)
         found &= comp >= 0
-        vert[found, q] = first_vertex[pos[found]] + comp[found]
-    # QEF per vertex from its edges: A^T A (6 entries), A^T b, mass point; the per-edge products
-    # (E, 13) summed into the vertices of their up to four cells by one sparse incidence product
+        vert[found, q] = base[pos[found]] + comp[found]
+    # QEF per vertex of the slab from its edges: A^T A (6 entries), A^T b, mass point; the per-edge
+    # products (E, 13) summed into the vertices of their up to four cells by one sparse incidence product
     d = np.einsum("ij,ij->i", normal, points)
     pairs = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
     terms = np.empty((len(d), 13))
@@ -269,8 +335,9 @@ def _contour(
     np.multiply(normal, d[:, None], out=terms[:, 6:9])
     terms[:, 9:12] = points
     terms[:, 12] = 1.0
-    sums = _incidence(vert, n_vert) @ terms
-    del terms
+    local_vert = np.where(vert >= offset, vert - offset, -1)  # the carried layer's QEFs are done
+    sums = _incidence(local_vert, n_vert) @ terms
+    del terms, local_vert
     ata = np.empty((n_vert, 3, 3))
     for k, (i, j) in enumerate(pairs):
         ata[:, i, j] = ata[:, j, i] = sums[:, k]
@@ -284,23 +351,37 @@ def _contour(
     cell_lo = lo + vcell * spacing
     cell_hi = np.minimum(cell_lo + spacing, hi)
     x, rank = _solve_qef(ata, atb, mass, cell_lo, cell_hi)
+    del ata, atb
     # a cell crossed by two or more sheets (a feature thinner than the cell): their QEF points, each
     # free in the whole cell, can cross the other sheet; their mass points stay between their own edges
     shared = np.repeat(n_comp > 1, n_comp)
     x[shared], rank[shared] = mass[shared], 0
     x, smooth_gradient = _project_smooth(f, x, rank, cell_lo, cell_hi, device, spacing)
-    # quads of the edges whose four cells lie in the grid, oriented outward (toward f <= 0)
-    full = (vert >= 0).all(axis=1)
-    quads = vert[full]
-    outward = np.where(s.f0[full] > 0, 1.0, -1.0)  # +axis when the start is inside
-    quads = np.where((outward > 0)[:, None], quads, quads[:, ::-1])
+    # quads of the edges starting in the slab whose four cells lie in the grid
+    own = (vert >= 0).all(axis=1) & (s.edge_node[:, 0] >= first) & (s.edge_node[:, 0] < end)
+    part = _Vertices(
+        x, mass, smooth_gradient, cell_lo, cell_hi, vert[own], a[own], s.f0[own] > 0, s.edge_node[own], points[own]
+    )
+    last = s.cell[:, 0] == end - 1
+    next_carry = (s.cell_key[last], first_vertex[:-1][last] + offset, s.config[last])
+    return part, next_carry
+
+
+def _contour(
+    f: Callable, v: _Vertices, lo: np.ndarray, spacing: np.ndarray, cells: tuple[int, int, int], device: Any
+) -> Mesh:
+    """The mesh from all slabs' vertices and quads: triangles, unbiasing, folds, compaction, grad f."""
+    x, mass, smooth_gradient, cell_lo, cell_hi = v.x, v.mass, v.gradient, v.cell_lo, v.cell_hi
+    # quads oriented outward (toward f <= 0)
+    outward = np.where(v.inside_start, 1.0, -1.0)  # +axis when the start is inside
+    quads = np.where(v.inside_start[:, None], v.quads, v.quads[:, ::-1])
     direction = np.zeros((len(quads), 3))
-    direction[np.arange(len(quads)), a[full]] = outward
+    direction[np.arange(len(quads)), v.axis] = outward
     faces, x = _triangulate(quads, x, direction, mass)
     smooth_gradient[(x == mass).all(axis=1)] = np.nan  # sent back to its mass point: not smooth-projected
     x = _unbias(f, x, faces, smooth_gradient, cell_lo, cell_hi, device)
     used = np.unique(faces)
-    index = np.full(n_vert, -1, dtype=np.int64)
+    index = np.full(len(x), -1, dtype=np.int64)
     index[used] = np.arange(len(used))
     x = x[used]
     faces = index[faces]

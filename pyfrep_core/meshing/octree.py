@@ -152,12 +152,13 @@ def sample_blocks(
     dtype: torch.dtype,
     device: Any,
     progress: Any = None,
+    first_step: int = 0,
 ) -> Samples | None:
     """f at every node of the leaf blocks (in chunks), their crossing edges and mixed cells.
 
     ``axes`` are the grid's sample positions per axis.  ``progress`` (a
-    :class:`pyfrep_core.progress.Progress` or None) is advanced by one step per chunk; when it
-    asks to stop, None is returned.
+    :class:`pyfrep_core.progress.Progress` or None) is advanced by one step per chunk (numbered
+    from ``first_step``); when it asks to stop, None is returned.
     """
     s = int(block)
     shape = np.array([len(a) for a in axes], dtype=np.int64)
@@ -214,7 +215,7 @@ def sample_blocks(
             end[a] = end[a] + 1
             edges_f0.append(v[b, i, j, l3].astype(np.float64))
             edges_f1.append(v[b, end[0], end[1], end[2]].astype(np.float64))
-        if progress is not None and progress.update(step):
+        if progress is not None and progress.update(first_step + step):
             return None
     key = np.concatenate(edges_key) if edges_key else np.zeros(0, dtype=np.int64)
     key, first = np.unique(key, return_index=True)

@@ -180,6 +180,11 @@ def test_dragging_the_surface_pulls_it_by_the_mouse_travel_along_the_normal():
         # the sphere's radius moves by exactly the pull: the surface passes through the dragged-to point
         assert panel.sliders["r"].value == pytest.approx(0.8 + pp.pull.value, abs=1e-6)
         assert panel.last_job["params"]["r"] == pytest.approx(0.8 + pp.pull.value, abs=1e-6)
+        # a normal seen end-on (the ball's point facing the camera): the vertical travel, up is outward
+        eye = np.asarray(plotter.camera.position)
+        pp.pick(panel.sliders["r"].value * eye / np.linalg.norm(eye))
+        direction, per_unit = pp.screen_normal()
+        assert np.array_equal(direction, [0.0, 1.0]) and per_unit > 0
         # a press beside the shape still turns the camera, and picks nothing new
         picked = pp.point.copy()
         pp.drag_mouse((3, 3), (40, 3))

@@ -5,9 +5,9 @@ forwards every press, move and release to it), where a cell picker finds the sur
 under the pixel.  With "drag the surface" off, a press-and-drag turns the camera and a click
 picks.  With it on, a press on the surface picks the point there and the drag that follows
 pulls it: the mouse's travel projected on the normal's direction on the screen, divided by
-how many pixels one length unit along the normal spans there, is the displacement (where the
-normal points at the viewer, the vertical travel: up is towards the viewer); a press beside
-the shape still turns the camera.
+how many pixels one length unit along the normal spans there, is the displacement, so the
+point follows the mouse (see :meth:`PushPullControls.screen_normal` for a normal seen nearly
+end-on); a press beside the shape still turns the camera.
 
 The "pull" slider is the distance along the outward normal at the point (a drag sets it; a
 value can be typed in its box); each value is solved for by :func:`pyfrep_core.push_pull.push_pull`
@@ -176,19 +176,20 @@ class PushPullControls:
     def screen_normal(self) -> tuple[np.ndarray, float]:
         """The drag's direction on the screen (unit, display coordinates) and pixels per length unit along it.
 
-        The normal's own projection, unless it points within ~75 degrees of the viewer (it spans under
-        a quarter of the pixels of a direction across the view): then the screen's vertical, up
-        meaning towards the viewer, at the pixels per unit across the view at the point's depth.
+        The normal's own projection, its pixels per unit at least half those of a direction across
+        the view at the point's depth (a normal seen nearly end-on would turn a few pixels into a
+        long pull: 30 px were 0.37 units on the Fig. 1 part's far hole wall); where it spans under
+        a tenth of those (end-on), the screen's vertical, up meaning towards the viewer.
         """
         camera = self.panel.view.plotter.camera
         h = 1e-3 * max(camera.distance, 1e-12)
         at = self._display(self.point)
         along = (self._display(self.point + h * self.normal) - at) / h
         across = np.linalg.norm(self._display(self.point + h * np.asarray(camera.up)) - at) / h
-        if np.linalg.norm(along) >= 0.25 * across:
-            return along / np.linalg.norm(along), float(np.linalg.norm(along))
+        if np.linalg.norm(along) >= 0.1 * across:
+            return along / np.linalg.norm(along), float(max(np.linalg.norm(along), 0.5 * across))
         towards = np.dot(self.normal, np.asarray(camera.position) - self.point) > 0
-        return np.array([0.0, 1.0 if towards else -1.0]), float(across)
+        return np.array([0.0, 1.0 if towards else -1.0]), float(0.5 * across)
 
     def drag_to(self, x: int, y: int) -> None:
         """The point dragged to pixel (x, y): the pull is the travel along the normal on the screen."""

@@ -6,6 +6,9 @@ Times (best of several runs, wall clock and CPU; the mesh is not timed), in one 
   evaluation of f and 3 backward passes: the gradient and two Hessian-vector products along a
   tangent frame, in chunks spread over ``torch.get_num_threads()`` threads);
 - ours, one :func:`curvatures` call (H, K, principal curvatures and directions together);
+- the same two, fused: ``compiled(fig1_part, second_order=True)``, whose passes are traced
+  once into a graph without autograd and compiled by Inductor (the compilation, paid once per
+  dtype and cached on disk by Inductor, is timed and printed separately);
 - variants, for the record: the full Hessian (1 + 3 passes) + the paper's formulas
   (:func:`curvatures_from_hessian`); per-point functional derivatives ``vmap(jacrev(grad))``
   (reverse over reverse) and ``vmap(torch.func.hessian)`` (forward over reverse: forward-mode
@@ -39,6 +42,7 @@ from torch.func import hessian as func_hessian
 from torch.func import jacrev, vmap
 
 from pyfrep_core import polygonize
+from pyfrep_core.compiled import compiled, warm_up
 from pyfrep_core.curvature import curvatures, curvatures_from_hessian, gaussian_curvature, mean_curvature
 from pyfrep_core.diff import _map_chunks, value_grad_hessian
 from pyfrep_core.models import fig1_part
@@ -56,6 +60,17 @@ def separate(x: torch.Tensor):
 
 def ours(x: torch.Tensor):
     return curvatures(f, x)
+
+
+FUSED = compiled(fig1_part, second_order=True)
+
+
+def fused_separate(x: torch.Tensor):
+    return mean_curvature(FUSED, x), gaussian_curvature(FUSED, x)
+
+
+def fused(x: torch.Tensor):
+    return curvatures(FUSED, x)
 
 
 def full_hessian(x: torch.Tensor):
@@ -172,9 +187,13 @@ def main() -> None:
         x = x64.to(dtype)
         print(f"{str(dtype).removeprefix('torch.')}:")
         rows = {}
+        seconds = warm_up(FUSED, dtypes=(), gradients=(), second_order=(dtype,))
+        print(f"  compiling the fused second-order kernel: {seconds:.1f} s (once per dtype, cached on disk)")
         for name, fn, reps in (
             ("ours: mean_curvature + gaussian_curvature", separate, repeats),
             ("ours: curvatures (H, K, kmin, kmax, dirs)", ours, repeats),
+            ("fused: mean_curvature + gaussian_curvature", fused_separate, repeats),
+            ("fused: curvatures (H, K, kmin, kmax, dirs)", fused, repeats),
             ("hessian (1+3 passes) + paper formulas", full_hessian, max(2, repeats // 2)),
             ("vmap(jacrev(grad)) + paper formulas", reverse_over_reverse, 2),
             ("vmap(hessian), one thread + formulas", forward_over_reverse, 2),
@@ -199,6 +218,8 @@ def main() -> None:
         for name, target in (
             ("ours: mean_curvature + gaussian_curvature", 4),
             ("ours: curvatures (H, K, kmin, kmax, dirs)", 8),
+            ("fused: mean_curvature + gaussian_curvature", 4),
+            ("fused: curvatures (H, K, kmin, kmax, dirs)", 8),
         ):
             wall, cpu = rows[name]
             print(

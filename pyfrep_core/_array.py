@@ -40,6 +40,7 @@ from typing import Any
 
 import numpy as np
 import torch
+from torch.fx.experimental.proxy_tensor import get_proxy_mode
 
 Array = torch.Tensor | np.ndarray
 Scalar = float | torch.Tensor
@@ -479,6 +480,8 @@ def tracing(*values: Any) -> bool:
     enters such a transform, so nothing unchecked reaches a model that way.
     """
     if torch.compiler.is_compiling() or torch._C._are_functorch_transforms_active():
+        return True
+    if get_proxy_mode() is not None:  # make_fx tracing (a compiled derivative kernel): values are symbolic
         return True
     return any(isinstance(v, torch.Tensor) and torch._C._functorch.is_functorch_wrapped_tensor(v) for v in values)
 

@@ -20,7 +20,9 @@ What goes through the compiled kernel, and what stays eager
 - anything else that differentiates (Hessians and curvature, ``create_graph``, a user's own
   ``torch.autograd.grad``, ``torch.func`` transforms, forward-mode AD), batched (B,)
   parameters, and fewer than two points: the eager model, so every result stays correct
-  (torch.compile cannot differentiate its kernels twice).  Per-point parameter derivatives
+  (torch.compile cannot differentiate its kernels twice).  ``compiled(model, second_order=True)``
+  fuses curvature's passes instead: they are traced once into a graph without autograd
+  (``make_fx``) and that graph is compiled (:meth:`CompiledModel.tangent_hessian`).  Per-point parameter derivatives
   (:func:`pyfrep_core.param_grad`, :func:`pyfrep_core.sensitivity.normal_velocity`, the
   fitting Jacobian) are taken per sample under ``torch.func.vmap``/``grad``, hence eagerly:
   the eager model's values, bit for bit;
@@ -102,14 +104,17 @@ class CompiledModel(Model):
 
     chunk_points = CHUNK_POINTS
 
-    def __init__(self, eager: Model, dynamic: bool = True):
+    def __init__(self, eager: Model, dynamic: bool = True, second_order: bool = False):
         self.eager = eager
+        self.second_order = second_order
         self.failure: BaseException | None = None
         self._kernel = torch.compile(eager.fn, dynamic=dynamic)
         # variants are per code object (dtype, grad f): raise dynamo's limit, never lower it
         config = torch._dynamo.config
         config.recompile_limit = max(config.recompile_limit, RECOMPILE_LIMIT)
         self._lock = threading.Lock()
+        self._second_order_kernels: dict[tuple[torch.dtype, torch.device], Any] = {}
+        self.second_order_failure: BaseException | None = None
 
         @functools.wraps(eager.fn)
         def fn(x: torch.Tensor, **params: Any) -> torch.Tensor:
@@ -171,14 +176,91 @@ class CompiledModel(Model):
             return self.eager.fn(x, **params)  # not one value per point: let the caller's check name it
         return out.reshape(x.shape[:-1])
 
+    def tangent_hessian(self, x: torch.Tensor) -> tuple[torch.Tensor, ...] | None:
+        """f, grad f, tangent frame and tangent Hessian at points (N, d), through one fused kernel.
 
-def compiled(model: Model, dynamic: bool = True) -> CompiledModel:
+        What :func:`pyfrep_core.diff.tangent_hessian` computes with 1 + (d-1) backward passes,
+        at the model's default parameters: the passes are traced once per dtype and device into
+        one graph (``make_fx``: no autograd at run time) and compiled by Inductor, then run on
+        fixed chunks (the pieces the derivative passes take, :func:`pyfrep_core.diff._chunk_size`;
+        a shorter one padded).  Returns None where
+        the eager passes must decide (a graph to keep, a transform active, a failed compile).
+        """
+        from .diff import _chunk_size
+
+        if (
+            not self.second_order
+            or self.failure is not None
+            or self.second_order_failure is not None
+            or x.ndim != 2
+            or x.shape[0] < 2
+            or x.requires_grad
+            or torch._C._are_functorch_transforms_active()
+        ):
+            return None
+        values = self.check()
+        try:
+            kernel = self._second_order_kernel(x.dtype, x.device, _chunk_size(x, None), values)
+        except Exception as error:  # noqa: BLE001  (any tracing or compiler failure: the eager passes decide)
+            with self._lock:
+                if self.second_order_failure is None:
+                    self.second_order_failure = error
+                    warnings.warn(
+                        f"compiled({self.__name__}): the second-order kernel failed ({type(error).__name__}: "
+                        f"{str(error).splitlines()[0] if str(error) else ''}); differentiating eagerly",
+                        RuntimeWarning,
+                        stacklevel=4,
+                    )
+            return None
+        args = [torch.as_tensor(v, dtype=x.dtype, device=x.device) for v in values.values()]
+        n, size = x.shape[0], _chunk_size(x, None)
+        parts = []
+        with intra_op_threads(self._threads(x)), torch.no_grad():
+            for start in range(0, n, size):
+                piece = x[start : start + size]
+                if piece.shape[0] < size:  # the kernel's shapes are fixed: pad with copies of the first point
+                    piece = torch.cat([piece, piece[:1].expand(size - piece.shape[0], -1)])
+                parts.append([t[: min(size, n - start)] for t in kernel(piece.contiguous(), *args)])
+        return tuple(torch.cat(ts) for ts in zip(*parts))
+
+    def _second_order_kernel(self, dtype: torch.dtype, device: torch.device, size: int, values: dict[str, Any]) -> Any:
+        from torch.fx.experimental.proxy_tensor import make_fx
+
+        from .diff import _tangent_hessian
+
+        key = (dtype, device)
+        with self._lock:  # one trace and compile per variant, whichever thread asks first
+            kernel = self._second_order_kernels.get(key)
+            if kernel is not None:
+                return kernel
+            names = list(values)
+
+            def passes(x: torch.Tensor, *params: torch.Tensor) -> tuple[torch.Tensor, ...]:
+                bound = dict(zip(names, params, strict=True))
+                return _tangent_hessian(lambda p: self.eager.fn(p, **bound), x, False)
+
+            example = torch.zeros(size, self.dim, dtype=dtype, device=device)
+            args = [torch.as_tensor(v, dtype=dtype, device=device) for v in values.values()]
+            graph = make_fx(passes, tracing_mode="real")(example, *args)
+            kernel = torch.compile(graph, dynamic=False)
+            with intra_op_threads(self._threads(example)), torch.no_grad():
+                kernel(example, *args)  # compiles now, under the lock
+            self._second_order_kernels[key] = kernel
+            return kernel
+
+
+def compiled(model: Model, dynamic: bool = True, second_order: bool = False) -> CompiledModel:
     """The same model, evaluated through ``torch.compile`` (fused; see the module docstring).
 
     Parameters
     ----------
     model : a :class:`~pyfrep_core.model.Model` (declared with ``@model``).
     dynamic : compile for any number of points (True), so chunks of every size share one kernel.
+    second_order : also fuse what curvature differentiates (:meth:`CompiledModel.tangent_hessian`,
+        at the default parameters): 2-3x less CPU per curvature call, paid for by a long
+        compilation on first use per dtype (the Fig. 1 part: about 1 min on 2 cores with an
+        empty Inductor cache, 15 s from the on-disk cache); ``warm_up(..., second_order=...)``
+        pays it ahead.
 
     Returns
     -------
@@ -199,10 +281,12 @@ def compiled(model: Model, dynamic: bool = True) -> CompiledModel:
     True
     """
     if isinstance(model, CompiledModel):
+        if second_order and not model.second_order:
+            return CompiledModel(model.eager, dynamic=dynamic, second_order=True)
         return model
     if not isinstance(model, Model):
         raise TypeError(f"compiled() takes a pyfrep_core Model (declared with @model), got {type(model).__name__}")
-    return CompiledModel(model, dynamic=dynamic)
+    return CompiledModel(model, dynamic=dynamic, second_order=second_order)
 
 
 def warm_up(
@@ -211,13 +295,15 @@ def warm_up(
     dtypes: tuple[torch.dtype, ...] = (torch.float32, torch.float64),
     gradients: tuple[torch.dtype, ...] = (torch.float64,),
     device: str | torch.device = "cpu",
+    second_order: tuple[torch.dtype, ...] = (),
 ) -> float:
     """Compile the variants a re-mesh uses, ahead of time; returns the seconds it took.
 
     Values in each of ``dtypes`` (polygonize's grid in float32, its vertices in float64);
     value and grad f in each of ``gradients`` (the vertices' normals).  Per-point df/dp (the
     panel's colouring) needs no kernel: it runs eagerly under ``torch.func``.  Points are
-    drawn inside the model's bounds.  The kernels then run at once
+    drawn inside the model's bounds.  ``second_order`` lists the dtypes whose curvature kernel
+    to compile too (a model built with ``compiled(model, second_order=True)``).  The kernels then run at once
     on first real use.  Each variant compiles in a few seconds the first time on this
     machine (the Fig. 1 part: about 35 s in all with an empty Inductor cache, 3 s from
     the on-disk cache).
@@ -249,4 +335,8 @@ def warm_up(
             model(points.to(dtype=dtype, device=device), **values)
     for dtype in gradients:
         value_and_grad(lambda p: model(p, **values), points.to(dtype=dtype, device=device))
+    for dtype in second_order:
+        if not model.second_order:
+            raise ValueError("warm_up: second_order needs a model built with compiled(model, second_order=True)")
+        model.tangent_hessian(points.to(dtype=dtype, device=device))
     return time.perf_counter() - start

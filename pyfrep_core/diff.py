@@ -39,7 +39,7 @@ from typing import Any, NamedTuple
 import torch
 
 from ._array import as_tensor, check_finite, check_memory, check_option, check_points, named_entry, validated_inputs
-from .compiled import first_order
+from .compiled import CompiledModel, first_order
 from .evaluate import call, call_budget, name_of, remember_refusal, vmap_refused
 
 __all__ = [
@@ -357,6 +357,10 @@ def tangent_frame(n: torch.Tensor) -> torch.Tensor:
 
 def _tangent_hessian(f: Callable, x: torch.Tensor, create_graph: bool) -> tuple[torch.Tensor, ...]:
     """f, grad f, a tangent frame T (N, d-1, d) and T Hf T^T (N, d-1, d-1): 1 + (d-1) backward passes."""
+    if not create_graph and isinstance(f, CompiledModel):
+        fused = f.tangent_hessian(x)  # the same passes, traced and compiled once
+        if fused is not None:
+            return fused
     with torch.enable_grad():
         xr = _leaf(x, create_graph)
         y = call(f, xr, label=name_of(f))

@@ -18,7 +18,20 @@ import torch
 from rounding import float32_error_bound
 from torch._dynamo.utils import counters
 
-from pyfrep_core import Param, curvatures, grad, hessian, model, param_grad, polygonize, sphere, value_and_grad
+from pyfrep_core import (
+    Param,
+    curvatures,
+    gaussian_curvature,
+    grad,
+    hessian,
+    mean_curvature,
+    model,
+    param_grad,
+    polygonize,
+    sphere,
+    torusZ,
+    value_and_grad,
+)
 from pyfrep_core.compiled import CompiledModel, compiled, first_order, warm_up
 from pyfrep_core.models import ellipse, fig1_part, microstructure, pawn, schwarz_d
 from pyfrep_core.sensitivity import param_derivative
@@ -480,3 +493,88 @@ def test_compiled_takes_only_models_is_idempotent_and_says_what_it_is(fast):
     assert fast["ellipse"].dim == 2 and fast["ellipse"].bounds == ellipse.bounds
     with pytest.raises(ValueError, match="outside its range"):
         f.check(r=2.0)
+
+
+# ----------------------------------------------------------------------------- fused second order
+
+
+@model(bounds=((-1.5, -1.5, -0.5), (1.5, 1.5, 0.5)), R=Param(1.0, 0.6, 1.4), r=Param(0.3, 0.1, 0.5))
+def ring(x, R, r):
+    """A torus written the way people write it: principal curvatures 1/r and cos v / (R + r cos v)."""
+    return torusZ(x, center=(0.0, 0.0, 0.0), R=R, r=r)
+
+
+def on_ring(n, seed, R=1.0, r=0.3):
+    """Points on the torus and the tube angle v of each (v = 0 on the outer equator)."""
+    u, v = np.random.default_rng(seed).uniform(0, 2 * np.pi, (2, n))
+    rho = R + r * np.cos(v)
+    return np.stack([rho * np.cos(u), rho * np.sin(u), r * np.sin(v)], axis=1), v
+
+
+@pytest.fixture(scope="module")
+def fused_ring():
+    return compiled(ring, second_order=True)
+
+
+def test_fused_curvatures_are_the_torus_closed_forms_and_the_eager_values(fused_ring):
+    # 20,001 points: several pooled pieces, the last one shorter than the kernel's fixed chunk (padded)
+    x, v = on_ring(20_001, seed=30)
+    calls = []
+    kernel = fused_ring.tangent_hessian
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(fused_ring, "tangent_hessian", lambda t: calls.append(t.shape[0]) or kernel(t))
+        c = curvatures(fused_ring, x)
+        h = mean_curvature(fused_ring, x)
+        k = gaussian_curvature(fused_ring, x)
+    assert sum(calls) == 3 * len(x)  # every point went through the fused kernel, three times
+    eager = curvatures(ring, x)
+    k_outer = np.cos(v) / (1.0 + 0.3 * np.cos(v))
+    # float64, points on the exact surface: only rounding separates them from the closed forms
+    np.testing.assert_allclose(c.kmin, np.minimum(1 / 0.3, k_outer), rtol=1e-10, atol=1e-10)
+    np.testing.assert_allclose(c.kmax, np.maximum(1 / 0.3, k_outer), rtol=1e-10, atol=1e-10)
+    np.testing.assert_allclose(c.K, k_outer / 0.3, rtol=1e-10, atol=1e-10)
+    np.testing.assert_allclose(h, (1 / 0.3 + k_outer) / 2, rtol=1e-10, atol=1e-10)
+    np.testing.assert_allclose(k, c.K, rtol=1e-12, atol=1e-12)
+    for name in ("H", "K", "kmin", "kmax"):
+        np.testing.assert_allclose(getattr(c, name), getattr(eager, name), rtol=1e-12, atol=1e-12)
+    # directions up to sign
+    np.testing.assert_allclose(np.abs(np.sum(c.dmax * eager.dmax, axis=1)), 1.0, atol=1e-9)
+
+
+def test_fused_curvatures_in_float32_and_from_threads_give_the_serial_values(fused_ring):
+    x, v = on_ring(3000, seed=31)
+    x32 = torch.as_tensor(x, dtype=torch.float32)
+    serial = curvatures(fused_ring, x32).H
+    assert serial.dtype == torch.float32
+    # float32: the closed form within a few hundred ulp of the largest curvature (10/3)
+    np.testing.assert_allclose(serial.numpy(), (1 / 0.3 + np.cos(v) / (1 + 0.3 * np.cos(v))) / 2, atol=2e-4)
+    results, errors = [], []
+
+    def work():
+        try:
+            for _ in range(10):
+                results.append(curvatures(fused_ring, x32).H)
+        except Exception as error:  # reported below
+            errors.append(error)
+
+    threads = [threading.Thread(target=work) for _ in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(timeout=300)
+    assert not errors, errors
+    assert len(results) == 40
+    for h in results:
+        torch.testing.assert_close(h, serial, rtol=0, atol=0)
+
+
+def test_a_kept_graph_or_a_plain_compiled_model_differentiates_eagerly(fused_ring):
+    x = torch.as_tensor(on_ring(50, seed=32)[0])
+    assert compiled(ring).tangent_hessian(x) is None  # second_order not asked for
+    assert fused_ring.tangent_hessian(x.clone().requires_grad_(True)) is None
+    xr = x.clone().requires_grad_(True)
+    h = mean_curvature(fused_ring, xr, create_graph=True)  # a curvature term in a loss: the graph is kept
+    (dh,) = torch.autograd.grad(h.sum(), xr)
+    assert torch.isfinite(dh).all() and dh.abs().max() > 0
+    with pytest.raises(ValueError, match="second_order"):
+        warm_up(compiled(ring), dtypes=(), gradients=(), second_order=(torch.float64,))

@@ -57,6 +57,7 @@ __all__ = ["dual_contour", "SINGULAR_CUTOFF", "LEAF_BLOCK"]
 SINGULAR_CUTOFF = 0.05  # relative eigenvalue of A^T A below which a direction is free (a crease of > 25 degrees stays)
 LEAF_BLOCK = 4  # cells per leaf block edge: the octree's finest interval test
 SLAB_BLOCKS = 1 << 14  # leaf blocks sampled and contoured at a time (memory: about 200 MB of Hermite data)
+FINISH_CHUNK = 1 << 18  # quads or triangles at a time in the whole-mesh passes (their temporaries' memory)
 
 
 # ----------------------------------------------------------------------------- cube tables
@@ -203,7 +204,9 @@ def dual_contour(
     if not parts or sum(len(p.quads) for p in parts) == 0:
         warnings.warn("polygonize: f does not change sign inside the bounds; empty mesh", RuntimeWarning, stacklevel=2)
         return empty
-    return _contour(f, _Vertices(*(np.concatenate(column) for column in zip(*parts))), lo, spacing, cells, device)
+    vertices = _Vertices(*(np.concatenate(column) for column in zip(*parts)))
+    del parts  # the slabs' copies
+    return _contour(f, vertices, lo, hi, spacing, cells, device)
 
 
 def _slabs(blocks: np.ndarray, block: int, ncell_x: int) -> list[tuple[np.ndarray, int, int]]:
@@ -256,17 +259,16 @@ def _hermite(
 class _Vertices(NamedTuple):
     """One slab's vertices and the quads of the crossing edges it owns (global vertex indices).
 
-    x, mass, gradient (NaN where not smooth-projected), cell_lo, cell_hi : (V, 3) per vertex;
+    x, mass, gradient (NaN where not smooth-projected) : (V, 3) per vertex; cell : (V, 3) int32 its cell;
     quads : (Q, 4) int64 counter-clockwise about +axis; axis : (Q,) the edges' axes;
-    inside_start : (Q,) bool f > 0 at the edge's start; node : (Q, 3) its start node; points : (Q, 3)
+    inside_start : (Q,) bool f > 0 at the edge's start; node : (Q, 3) int32 its start node; points : (Q, 3)
     the edge's root.
     """
 
     x: np.ndarray
     mass: np.ndarray
     gradient: np.ndarray
-    cell_lo: np.ndarray
-    cell_hi: np.ndarray
+    cell: np.ndarray
     quads: np.ndarray
     axis: np.ndarray
     inside_start: np.ndarray
@@ -360,7 +362,15 @@ def _slab(
     # quads of the edges starting in the slab whose four cells lie in the grid
     own = (vert >= 0).all(axis=1) & (s.edge_node[:, 0] >= first) & (s.edge_node[:, 0] < end)
     part = _Vertices(
-        x, mass, smooth_gradient, cell_lo, cell_hi, vert[own], a[own], s.f0[own] > 0, s.edge_node[own], points[own]
+        x,
+        mass,
+        smooth_gradient,
+        vcell.astype(np.int32),
+        vert[own],
+        a[own],
+        s.f0[own] > 0,
+        s.edge_node[own].astype(np.int32),
+        points[own],
     )
     last = s.cell[:, 0] == end - 1
     next_carry = (s.cell_key[last], first_vertex[:-1][last] + offset, s.config[last])
@@ -368,10 +378,16 @@ def _slab(
 
 
 def _contour(
-    f: Callable, v: _Vertices, lo: np.ndarray, spacing: np.ndarray, cells: tuple[int, int, int], device: Any
+    f: Callable,
+    v: _Vertices,
+    lo: np.ndarray,
+    hi: np.ndarray,
+    spacing: np.ndarray,
+    cells: tuple[int, int, int],
+    device: Any,
 ) -> Mesh:
     """The mesh from all slabs' vertices and quads: triangles, unbiasing, folds, compaction, grad f."""
-    x, mass, smooth_gradient, cell_lo, cell_hi = v.x, v.mass, v.gradient, v.cell_lo, v.cell_hi
+    x, mass, smooth_gradient = v.x, v.mass, v.gradient
     # quads oriented outward (toward f <= 0)
     outward = np.where(v.inside_start, 1.0, -1.0)  # +axis when the start is inside
     quads = np.where(v.inside_start[:, None], v.quads, v.quads[:, ::-1])
@@ -379,7 +395,9 @@ def _contour(
     direction[np.arange(len(quads)), v.axis] = outward
     faces, x = _triangulate(quads, x, direction, mass)
     smooth_gradient[(x == mass).all(axis=1)] = np.nan  # sent back to its mass point: not smooth-projected
-    x = _unbias(f, x, faces, smooth_gradient, cell_lo, cell_hi, device)
+    cell_lo = lo + v.cell * spacing
+    x = _unbias(f, x, faces, smooth_gradient, cell_lo, np.minimum(cell_lo + spacing, hi), device)
+    del cell_lo
     used = np.unique(faces)
     index = np.full(len(x), -1, dtype=np.int64)
     index[used] = np.arange(len(used))
@@ -513,13 +531,16 @@ def _unbias(
         return x
     length = np.linalg.norm(gradient, axis=1)
     corners = [tri[:, k].copy() for k in range(3)]  # 1-D gathers per coordinate (fancy (F, 3, 3) ones cost more)
-    centroid = np.empty((len(tri), 3))
-    for i in range(3):
-        column = np.ascontiguousarray(x[:, i])
-        centroid[:, i] = (column[corners[0]] + column[corners[1]] + column[corners[2]]) / 3.0
-    with np.errstate(divide="ignore", invalid="ignore"):
-        mean_length = (length[corners[0]] + length[corners[1]] + length[corners[2]]) / 3.0
-        depth = _f64(f, centroid, device) / mean_length  # > 0: the centroid is inside
+    columns = [np.ascontiguousarray(x[:, i]) for i in range(3)]
+    depth = np.empty(len(tri))
+    for start in range(0, len(tri), FINISH_CHUNK):  # chunks: the centroids' memory stays bounded
+        ends = [k[start : start + FINISH_CHUNK] for k in corners]
+        centroid = np.empty((len(ends[0]), 3))
+        for i, column in enumerate(columns):
+            centroid[:, i] = (column[ends[0]] + column[ends[1]] + column[ends[2]]) / 3.0
+        with np.errstate(divide="ignore", invalid="ignore"):
+            mean_length = (length[ends[0]] + length[ends[1]] + length[ends[2]]) / 3.0
+            depth[start : start + FINISH_CHUNK] = _f64(f, centroid, device) / mean_length  # > 0: centroid inside
     depth = np.where(np.isfinite(depth), depth, 0.0)
     n = len(x)
     total = np.zeros(n)
@@ -542,17 +563,21 @@ def _triangulate(
     """Two triangles per quad (Q, 4) (counter-clockwise seen from outside; ``direction`` (Q, 3) the
     outward axis): the diagonal whose triangles both face outward (the better of the two otherwise).
     Where neither does, the quad's vertices go back to their mass points (up to three rounds)."""
-    direction = [np.ascontiguousarray(direction[:, i]) for i in range(3)]
+    second = np.zeros(len(quads), dtype=bool)
+    folded = np.zeros(len(quads), dtype=bool)
     for _ in range(4):
         columns = [np.ascontiguousarray(x[:, i]) for i in range(3)]  # coordinates apart: 1-D gathers
-        v = [[column[quads[:, k]] for column in columns] for k in range(4)]
-        score = []
-        for t1, t2 in (((0, 1, 2), (0, 2, 3)), ((1, 2, 3), (1, 3, 0))):
-            s1 = _facing(v[t1[0]], v[t1[1]], v[t1[2]], direction)
-            s2 = _facing(v[t2[0]], v[t2[1]], v[t2[2]], direction)
-            score.append(np.minimum(s1, s2))
-        second = score[1] > score[0]
-        folded = np.maximum(score[0], score[1]) <= 0
+        for start in range(0, len(quads), FINISH_CHUNK):  # chunks: the temporaries' memory stays bounded
+            part = slice(start, start + FINISH_CHUNK)
+            axis = [np.ascontiguousarray(direction[part, i]) for i in range(3)]
+            v = [[column[quads[part, k]] for column in columns] for k in range(4)]
+            score = []
+            for t1, t2 in (((0, 1, 2), (0, 2, 3)), ((1, 2, 3), (1, 3, 0))):
+                s1 = _facing(v[t1[0]], v[t1[1]], v[t1[2]], axis)
+                s2 = _facing(v[t2[0]], v[t2[1]], v[t2[2]], axis)
+                score.append(np.minimum(s1, s2))
+            second[part] = score[1] > score[0]
+            folded[part] = np.maximum(score[0], score[1]) <= 0
         if not folded.any():
             break
         bad = np.unique(quads[folded])

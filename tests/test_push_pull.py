@@ -125,6 +125,10 @@ def test_shape_panel_click_then_pull_moves_the_slider():
         assert panel.sliders["r"].value == pytest.approx(0.55, abs=1e-6)
         pp.pull.value = 0.4
         assert panel.sliders["r"].value == 0.2 and "r at a bound" in pp.status.value
+        panel.reset_button.click()  # Reset: the defaults, and no stale pick or pull
+        assert panel.sliders["r"].value == 0.5 and pp.point is None
+        assert pp.pull.disabled and pp.pull.value == 0.0 and "click the surface" in pp.status.value
+        assert not pp.marker_actor.visibility
     finally:
         panel.view.close()
 

@@ -91,6 +91,10 @@ class PushPullControls:
             "are solved for, within their ranges)"
         )
         self.widget = widgets.VBox([self.status, widgets.HBox([self.drag]), self.pull])
+        self._instruction = self.status.value
+        # Reset or another model: the picked point and the last pull no longer describe the view
+        panel.reset_button.on_click(lambda _: self.forget())
+        panel.choice.observe(lambda _: self.forget(), names="value")
         self.worker = LatestWorker(self._solve, self._solved, panel.main, settle=0.0)
         self.pull.observe(self._pulled, names="value")
         self.picker = vtkCellPicker()
@@ -105,6 +109,21 @@ class PushPullControls:
     def _say(self, text: str) -> None:
         """The status line (its own line height: the widget's is one control high)."""
         self.status.value = f"<div style='line-height:1.35;font-size:12px'><b>push-pull</b>: {text}</div>"
+
+    def forget(self) -> None:
+        """No point picked: the pull at 0 and disabled, the marker hidden, the instruction shown."""
+        self.point = self.normal = self.base = self._applied = self.result = None
+        self._dragging, self._pixels = False, None
+        self._quiet = True
+        try:
+            self.pull.value = 0.0
+            self.pull.disabled = True
+        finally:
+            self._quiet = False
+        self.status.value = self._instruction
+        if self.marker_actor is not None:
+            self.marker_actor.visibility = False
+            self.panel.view.render()
 
     # -- the mouse ------------------------------------------------------------------------------
     def _listen(self, iren: Any) -> None:
@@ -314,6 +333,8 @@ class PushPullControls:
         pts = np.array([point, target], dtype=np.float64)
         line = pv.PolyData(pts, lines=np.array([2, 0, 1]))
         self.marker.shallow_copy(line)
+        if self.marker_actor is not None:
+            self.marker_actor.visibility = True
         plotter = self.panel.view.plotter
         if self.marker_actor is None:
             self.marker_actor = plotter.add_mesh(

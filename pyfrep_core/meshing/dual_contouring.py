@@ -204,9 +204,7 @@ def dual_contour(
     if not parts or sum(len(p.quads) for p in parts) == 0:
         warnings.warn("polygonize: f does not change sign inside the bounds; empty mesh", RuntimeWarning, stacklevel=2)
         return empty
-    vertices = _Vertices(*(np.concatenate(column) for column in zip(*parts)))
-    del parts  # the slabs' copies
-    return _contour(f, vertices, lo, hi, spacing, cells, device)
+    return _contour(f, parts, lo, hi, spacing, cells, device)
 
 
 def _slabs(blocks: np.ndarray, block: int, ncell_x: int) -> list[tuple[np.ndarray, int, int]]:
@@ -379,25 +377,28 @@ def _slab(
 
 def _contour(
     f: Callable,
-    v: _Vertices,
+    parts: list[_Vertices],
     lo: np.ndarray,
     hi: np.ndarray,
     spacing: np.ndarray,
     cells: tuple[int, int, int],
     device: Any,
 ) -> Mesh:
-    """The mesh from all slabs' vertices and quads: triangles, unbiasing, folds, compaction, grad f."""
+    """The mesh from all slabs' vertices and quads (``parts``, emptied): triangles, unbiasing, folds,
+    compaction, grad f."""
+    v = _Vertices(*(np.concatenate(column) for column in zip(*parts)))
+    parts.clear()  # the slabs' copies
     x, mass, smooth_gradient = v.x, v.mass, v.gradient
     # quads oriented outward (toward f <= 0)
     outward = np.where(v.inside_start, 1.0, -1.0)  # +axis when the start is inside
     quads = np.where(v.inside_start[:, None], v.quads, v.quads[:, ::-1])
+    v = v._replace(quads=None)
     direction = np.zeros((len(quads), 3))
     direction[np.arange(len(quads)), v.axis] = outward
     faces, x = _triangulate(quads, x, direction, mass)
+    del direction, outward
     smooth_gradient[(x == mass).all(axis=1)] = np.nan  # sent back to its mass point: not smooth-projected
-    cell_lo = lo + v.cell * spacing
-    x = _unbias(f, x, faces, smooth_gradient, cell_lo, np.minimum(cell_lo + spacing, hi), device)
-    del cell_lo
+    x = _unbias(f, x, faces, smooth_gradient, v.cell, lo, hi, spacing, device)
     used = np.unique(faces)
     index = np.full(len(x), -1, dtype=np.int64)
     index[used] = np.arange(len(used))
@@ -511,11 +512,14 @@ def _unbias(
     x: np.ndarray,
     faces: np.ndarray,
     gradient: np.ndarray,
-    cell_lo: np.ndarray,
-    cell_hi: np.ndarray,
+    cell: np.ndarray,
+    lo: np.ndarray,
+    hi: np.ndarray,
+    spacing: np.ndarray,
     device: Any,
 ) -> np.ndarray:
-    """Smooth vertices moved along the normal so that the triangles' mean distance to f = 0 vanishes.
+    """Smooth vertices moved along the normal so that the triangles' mean distance to f = 0 vanishes
+    (each kept in its cell: ``cell`` (V, 3) indices into the grid from ``lo`` to ``hi``, cells ``spacing``).
 
     Flat triangles with their corners on a curved surface lie on its concave side: the chord
     error e(x) is a quadratic vanishing at the corners, e = a l1 l2 + b l2 l3 + c l3 l1 in
@@ -526,14 +530,16 @@ def _unbias(
     halves the largest distance to the surface.
     """
     known = np.isfinite(gradient).all(axis=1)
-    tri = faces[known[faces].all(axis=1)]
-    if len(tri) == 0:
+    smooth = known[faces].all(axis=1)
+    if not smooth.any():
         return x
     length = np.linalg.norm(gradient, axis=1)
-    corners = [tri[:, k].copy() for k in range(3)]  # 1-D gathers per coordinate (fancy (F, 3, 3) ones cost more)
+    corners = [faces[smooth, k] for k in range(3)]  # 1-D gathers per coordinate (fancy (F, 3, 3) ones cost more)
+    del smooth
+    tri_count = len(corners[0])
     columns = [np.ascontiguousarray(x[:, i]) for i in range(3)]
-    depth = np.empty(len(tri))
-    for start in range(0, len(tri), FINISH_CHUNK):  # chunks: the centroids' memory stays bounded
+    depth = np.empty(tri_count)
+    for start in range(0, tri_count, FINISH_CHUNK):  # chunks: the centroids' memory stays bounded
         ends = [k[start : start + FINISH_CHUNK] for k in corners]
         centroid = np.empty((len(ends[0]), 3))
         for i, column in enumerate(columns):
@@ -553,7 +559,8 @@ def _unbias(
     with np.errstate(divide="ignore", invalid="ignore"):
         unit = gradient[move] / length[move, None]
     out = x.copy()
-    out[move] = np.clip(x[move] - shift[:, None] * unit, cell_lo[move], cell_hi[move])  # outward: -grad f
+    cell_lo = lo + cell[move] * spacing
+    out[move] = np.clip(x[move] - shift[:, None] * unit, cell_lo, np.minimum(cell_lo + spacing, hi))  # outward: -grad f
     return out
 
 

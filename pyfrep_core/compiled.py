@@ -220,7 +220,8 @@ class CompiledModel(Model):
                 piece = x[start : start + size]
                 if piece.shape[0] < size:  # the kernel's shapes are fixed: pad with copies of the first point
                     piece = torch.cat([piece, piece[:1].expand(size - piece.shape[0], -1)])
-                parts.append([t[: min(size, n - start)] for t in kernel(piece.contiguous(), *args)])
+                piece = piece.t().contiguous().t()  # component-first, as traced: the fused loop vectorizes
+                parts.append([t[: min(size, n - start)] for t in kernel(piece, *args)])
         return tuple(torch.cat(ts) for ts in zip(*parts))
 
     def _second_order_kernel(self, dtype: torch.dtype, device: torch.device, size: int, values: dict[str, Any]) -> Any:
@@ -239,7 +240,7 @@ class CompiledModel(Model):
                 bound = dict(zip(names, params, strict=True))
                 return _tangent_hessian(lambda p: self.eager.fn(p, **bound), x, False)
 
-            example = torch.zeros(size, self.dim, dtype=dtype, device=device)
+            example = torch.zeros(self.dim, size, dtype=dtype, device=device).t()
             args = [torch.as_tensor(v, dtype=dtype, device=device) for v in values.values()]
             graph = make_fx(passes, tracing_mode="real")(example, *args)
             kernel = torch.compile(graph, dynamic=False)

@@ -75,7 +75,8 @@ class Progress:
     def update(self, step: int, loss: float = float("nan"), params: dict[str, float] | None = None, **extra) -> bool:
         self.bar.update(1)
         if step % self.every == 0 or step == self.total - 1:
-            self.bar.set_postfix(loss=f"{loss:.3e}", refresh=False)
+            if loss == loss:  # a stage without a loss (meshing) shows none, not "loss=nan"
+                self.bar.set_postfix(loss=f"{loss:.3e}", refresh=False)
             if self.callback is not None:
                 event = Event(
                     self.stage, step, self.total, float(loss), params, time.perf_counter() - self.start, extra

@@ -307,24 +307,27 @@ def _slab(
     keys = np.concatenate([carry[0], s.cell_key])
     config = np.concatenate([carry[2], s.config])
     base = np.concatenate([carry[1], first_vertex[:-1] + offset])  # global first vertex of each cell
-    # the up to four cells around each crossing edge, and the vertex of the edge's component there
+    # the up to four cells around each crossing edge, and the vertex of the edge's component there;
+    # per axis (the edges come sorted by axis, then node: the keys looked up come in order, which
+    # keeps the binary searches in cache)
     a = s.edge_axis
-    b, c = (a + 1) % 3, (a + 2) % 3
-    rows = np.arange(len(a))
     vert = np.full((len(a), 4), -1, dtype=np.int64)
-    for q, (db, dc) in enumerate(((1, 1), (0, 1), (0, 0), (1, 0))):  # counter-clockwise about +axis
-        cell = s.edge_node.copy()
-        cell[rows, b] -= db
-        cell[rows, c] -= dc
-        inside = ((cell >= 0) & (cell < ncell)).all(axis=1)
-        key = (cell[:, 0] * ncell[1] + cell[:, 1]) * ncell[2] + cell[:, 2]
-        pos = np.searchsorted(keys, key)
-        pos = np.minimum(pos, len(keys) - 1)
-        found = inside & (keys[pos] == key)
-        local = 4 * a + db + 2 * dc
-        comp = _COMPONENT[config[pos], local].astype(np.int64)
-        found &= comp >= 0
-        vert[found, q] = base[pos[found]] + comp[found]
+    bounds = np.searchsorted(a, np.arange(4))
+    for axis in range(3):
+        rows = slice(bounds[axis], bounds[axis + 1])
+        node = [s.edge_node[rows, d] for d in range(3)]
+        b, c = (axis + 1) % 3, (axis + 2) % 3
+        for q, (db, dc) in enumerate(((1, 1), (0, 1), (0, 0), (1, 0))):  # counter-clockwise about +axis
+            cell = list(node)
+            cell[b], cell[c] = node[b] - db, node[c] - dc
+            inside = (
+                (cell[b] >= 0) & (cell[c] >= 0) & (cell[0] < ncell[0]) & (cell[1] < ncell[1]) & (cell[2] < ncell[2])
+            )
+            key = (cell[0] * ncell[1] + cell[1]) * ncell[2] + cell[2]
+            pos = np.minimum(np.searchsorted(keys, key), len(keys) - 1)
+            comp = _COMPONENT[config[pos], 4 * axis + db + 2 * dc]
+            found = np.flatnonzero(inside & (keys[pos] == key) & (comp >= 0))
+            vert[bounds[axis] + found, q] = base[pos[found]] + comp[found]
     # QEF per vertex of the slab from its edges: A^T A (6 entries), A^T b, mass point; the per-edge
     # products (E, 13) summed into the vertices of their up to four cells by one sparse incidence product
     d = np.einsum("ij,ij->i", normal, points)

@@ -1,0 +1,312 @@
+"""Where dual contouring folds, the marching-cubes triangulation of the cells involved.
+
+Dual contouring joins the vertices of the four cells around each crossing edge; where two sheets
+pass within a cell of each other (thin rods, walls thinner than a cell) or a vertex sits far from
+its crossings, these quads can pierce each other.  Marching cubes cannot, cell by cell: its
+polygon in a cell joins the crossings on the cell's edges, so it lies in the cell.
+
+Between the two lies a family of meshes.  Each mesh edge (v, w) of dual contouring crosses the
+face shared by the cells of v and w between two crossings p, q of that face's edges (the
+segment marching cubes draws on the face); (v, p, w, q) is a "diamond" around it.  Splitting
+the quad of each edge e at its crossing p_e gives four half-diamonds (p_e, v_i, v_i+1); two
+halves with the same (v, w) make a diamond, which can be cut along v w (dual contouring) or
+along p q (marching cubes: the triangles (p, v, q) and (q, w, p), one in each cell).  A vertex
+whose diamonds are all cut along p q is the fan of its cell's marching-cubes polygon; at its
+mass point (the mean of those crossings, inside the cell) it lies in its cell.  Every choice
+keeps the mesh watertight, manifold and oriented.
+
+:func:`_unfold` finds the faces that intersect (:func:`_intersecting_pairs`, an exact
+orientation test on the pairs of faces that share a grid cell), turns their vertices into
+marching-cubes fans, and repeats on the faces that changed.
+
+>>> import numpy as np
+>>> v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0.2, 0.2, -0.5], [0.2, 0.2, 0.5], [0.3, 0.6, 0.0]])
+>>> _intersecting_pairs(v, np.array([[0, 1, 2], [3, 4, 5]]), np.zeros(3), np.ones(3))  # the second pierces the first
+array([[0, 1]])
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+UNFOLD_ROUNDS = 6  # rounds of "find intersecting faces, fan their vertices" (each grows the fanned set)
+PAIR_CHUNK = 1 << 16  # candidate pairs tested at a time (temporaries stay in cache)
+
+
+def _cells_of(
+    faces: np.ndarray, subset: np.ndarray, cell: np.ndarray, dims: np.ndarray, alone: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(face, cell key, own) entries of the faces ``subset``: every grid cell [i, i + 1) h that the
+    face's bounding box meets, and whether that cell's only vertex is one of the face's.
+
+    ``cell`` (V, 3) is each vertex's cell, ``dims`` the key's extent, ``alone`` (V,) whether a
+    vertex is the only one in its cell.  A point common to two faces lies in one half-open cell,
+    which both faces' boxes meet (floor is monotone), so two intersecting faces share an entry.
+    """
+    corner = cell[faces[subset]]
+    first = corner.min(axis=1)
+    span = corner.max(axis=1) - first + 1
+    count = span.prod(axis=1)
+    face = np.repeat(subset, count)
+    # the k-th cell of a face's box, in x-major order
+    k = np.arange(len(face)) - np.repeat(np.cumsum(count) - count, count)
+    sy, sz = np.repeat(span[:, 1], count), np.repeat(span[:, 2], count)
+    c = np.repeat(first, count, axis=0)
+    c[:, 0] += k // (sy * sz)
+    c[:, 1] += k // sz % sy
+    c[:, 2] += k % sz
+    key = (c[:, 0] * dims[1] + c[:, 1]) * dims[2] + c[:, 2]
+    vkey = (cell[:, 0] * dims[1] + cell[:, 1]) * dims[2] + cell[:, 2]
+    own = np.zeros(len(face), dtype=bool)
+    for k in range(3):
+        vertex = faces[face, k]
+        own |= (vkey[vertex] == key) & alone[vertex]
+    return face, key, own
+
+
+def _candidate_pairs(
+    v: np.ndarray, faces: np.ndarray, origin: np.ndarray, h: np.ndarray, changed: np.ndarray | None = None
+) -> np.ndarray:
+    """Pairs (P, 2) of faces, sharing no vertex, whose bounding boxes overlap within a common cell;
+    with ``changed`` (a face mask), only the pairs with at least one changed face.
+
+    Two faces holding the only vertex of a cell share it: in each cell only the pairs with a face
+    that does not hold it are formed (those faces first, each paired with the ones after it).
+    """
+    cell = np.floor((v - origin) / h).astype(np.int64)
+    cell -= cell.min(axis=0)
+    dims = cell.max(axis=0) + 1
+    vkey = (cell[:, 0] * dims[1] + cell[:, 1]) * dims[2] + cell[:, 2]
+    used = np.zeros(len(v), dtype=bool)
+    used[faces.ravel()] = True
+    keys, inverse, count = np.unique(vkey[used], return_inverse=True, return_counts=True)
+    alone = np.zeros(len(v), dtype=bool)
+    alone[used] = count[inverse] == 1
+    if changed is None:
+        face, key, own = _cells_of(faces, np.arange(len(faces)), cell, dims, alone)
+    else:
+        # the faces whose boxes can meet a changed face's cells have a vertex within a box's span of them
+        _, hot, _ = _cells_of(faces, np.flatnonzero(changed), cell, dims, alone)
+        hot = np.unique(hot)
+        corner = cell[faces]
+        reach = int((corner.max(axis=1) - corner.min(axis=1)).max(initial=0))
+        step = np.arange(-reach, reach + 1)
+        offset = np.stack(np.meshgrid(step, step, step, indexing="ij"), axis=-1).reshape(-1, 3)
+        offset_key = (offset[:, 0] * dims[1] + offset[:, 1]) * dims[2] + offset[:, 2]
+        near_keys = np.unique((hot[:, None] + offset_key[None]).ravel())
+        near = np.isin(vkey, near_keys)[faces].any(axis=1)
+        face, key, own = _cells_of(faces, np.flatnonzero(near), cell, dims, alone)
+        keep = np.isin(key, hot)
+        face, key, own = face[keep], key[keep], own[keep]
+    order = np.argsort(2 * key + own)  # by cell, the faces that do not hold its only vertex first
+    face, key, own = face[order], key[order], own[order]
+    start = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
+    end = np.repeat(np.r_[start[1:], len(key)], np.diff(np.r_[start, len(key)]))
+    corners = v[faces]
+    lo = np.ascontiguousarray(corners.min(axis=1).T)  # (3, F): one gather per axis below
+    hi = np.ascontiguousarray(corners.max(axis=1).T)
+    corner_ids = np.ascontiguousarray(faces.T)
+    out = []
+    idx = np.flatnonzero(~own)
+    k = 1
+    while len(idx):
+        idx = idx[idx + k < end[idx]]
+        a, b = face[idx], face[idx + k]
+        keep = changed[a] | changed[b] if changed is not None else np.ones(len(a), dtype=bool)
+        for d in range(3):
+            keep &= (lo[d][a] <= hi[d][b]) & (lo[d][b] <= hi[d][a])
+        a, b = a[keep], b[keep]
+        fa = [corner_ids[i][a] for i in range(3)]
+        fb = [corner_ids[i][b] for i in range(3)]
+        apart = np.ones(len(a), dtype=bool)
+        for i in range(3):
+            for j in range(3):
+                apart &= fa[i] != fb[j]
+        a, b = a[apart], b[apart]
+        out.append(np.minimum(a, b) * len(faces) + np.maximum(a, b))
+        k += 1
+    pairs = np.unique(np.concatenate(out)) if out else np.zeros(0, dtype=np.int64)
+    return np.stack([pairs // len(faces), pairs % len(faces)], axis=1)
+
+
+def _orient(a: np.ndarray, b: np.ndarray, c: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """Six times the signed volume of the tetrahedron (a, b, c, d): > 0 when d lies on the side of
+    the plane (a, b, c) that its right-hand normal points to."""
+    u, w, z = b - a, c - a, d - a  # (3, P): coordinates first
+    return (u[1] * w[2] - u[2] * w[1]) * z[0] + (u[2] * w[0] - u[0] * w[2]) * z[1] + (u[0] * w[1] - u[1] * w[0]) * z[2]
+
+
+def _pairs_intersect(v: np.ndarray, faces: np.ndarray, pairs: np.ndarray) -> np.ndarray:
+    """Whether each pair (P, 2) of triangles intersects: two triangles that are not coplanar meet
+    exactly when an edge of one meets the other (the ends of their common segment lie on edges).
+
+    First each triangle must reach both sides of the other's plane (or touch it), with the planes
+    computed once per face; the edge tests run on the pairs left.
+    """
+    corner = v[faces].transpose(1, 2, 0)  # (corner, coordinate, face)
+    e1, e2 = corner[1] - corner[0], corner[2] - corner[0]
+    normal = np.stack([e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2], e1[0] * e2[1] - e1[1] * e2[0]])
+    hit = np.zeros(len(pairs), dtype=bool)
+    for first in range(0, len(pairs), PAIR_CHUNK):
+        part = pairs[first : first + PAIR_CHUNK]
+        maybe = np.ones(len(part), dtype=bool)
+        sides = []
+        for one, other in ((part[:, 1], part[:, 0]), (part[:, 0], part[:, 1])):
+            n, base = normal[:, one], corner[0][:, one]  # differences first: coplanar corners give exact zeros
+            side = np.stack([np.einsum("cp,cp->p", n, corner[k][:, other] - base) for k in range(3)])
+            maybe &= (side.min(axis=0) <= 0) & (side.max(axis=0) >= 0)
+            sides.append(side)  # of ``other``'s corners to ``one``'s plane
+        rows = np.flatnonzero(maybe)
+        found = np.zeros(len(rows), dtype=bool)
+        for (one, other), side in zip(((part[:, 0], part[:, 1]), (part[:, 1], part[:, 0])), sides):
+            # an edge of ``one`` that crosses ``other``'s plane meets ``other`` inside its three edges
+            side = side[:, rows]
+            for i, j in ((0, 1), (1, 2), (2, 0)):
+                cross = np.flatnonzero((side[i] * side[j] <= 0) & ((side[i] != 0) | (side[j] != 0)) & ~found)
+                p = corner[i][:, one[rows[cross]]]
+                q = corner[j][:, one[rows[cross]]]
+                a, b, c = (corner[k][:, other[rows[cross]]] for k in range(3))
+                s1, s2, s3 = _orient(p, q, a, b), _orient(p, q, b, c), _orient(p, q, c, a)
+                inside = ((s1 >= 0) & (s2 >= 0) & (s3 >= 0)) | ((s1 <= 0) & (s2 <= 0) & (s3 <= 0))
+                found[cross] = inside & ((s1 != 0) | (s2 != 0) | (s3 != 0))
+        hit[first + rows] = found
+    return hit
+
+
+def _intersecting_pairs(
+    v: np.ndarray, faces: np.ndarray, origin: np.ndarray, h: np.ndarray, changed: np.ndarray | None = None
+) -> np.ndarray:
+    """Pairs (P, 2) of faces that share no vertex and intersect; the grid (``origin``, cell ``h``)
+    only buckets the search.  With ``changed``, only pairs with a changed face are tested."""
+    pairs = _candidate_pairs(v, faces, origin, h, changed)
+    return pairs[_pairs_intersect(v, faces, pairs)]
+
+
+def _halves(quads: np.ndarray, corner: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The four half-diamonds (quad q_i, q_i+1) of each quad (4 Q,), their mesh edge's ends a, b and
+    the partner half across each mesh edge (-1 at the border).
+
+    A mesh edge lies in two quads, or in four where both its cells see two crossings of an
+    ambiguous face in one component: there the halves pair up on the face's segments, whose two
+    crossings share their corner with f > 0 (``corner`` (Q,), a key of that node per quad).
+    """
+    a = quads.ravel()
+    b = quads[:, [1, 2, 3, 0]].ravel()
+    lo, hi = np.minimum(a, b), np.maximum(a, b)
+    partner = np.full(len(a), -1, dtype=np.int64)
+    _pair(partner, np.arange(len(a)), (lo, hi))
+    crowded = np.flatnonzero(partner < 0)  # at the border, or among four
+    _pair(partner, crowded, (lo[crowded], hi[crowded], np.repeat(corner, 4)[crowded]))
+    return a, b, partner
+
+
+def _pair(partner: np.ndarray, items: np.ndarray, keys: tuple) -> None:
+    """Set ``partner`` of the items whose keys (a tuple of arrays) are shared by exactly one other."""
+    order = np.lexsort(keys[::-1])
+    same = np.ones(max(len(order) - 1, 0), dtype=bool)
+    for k in keys:
+        same &= k[order][1:] == k[order][:-1]
+    start = np.flatnonzero(np.r_[True, ~same])
+    size = np.diff(np.r_[start, len(order)])
+    two = start[size == 2]
+    i, j = items[order[two]], items[order[two + 1]]
+    partner[i], partner[j] = j, i
+
+
+def _hybrid(
+    quads: np.ndarray, second: np.ndarray, crossing: np.ndarray, fanned: np.ndarray, halves: tuple
+) -> np.ndarray:
+    """Faces of the mesh whose vertices in ``fanned`` (a vertex mask) are marching-cubes fans.
+
+    ``quads`` (Q, 4) counter-clockwise seen from outside, ``second`` (Q,) their diagonal (q1 q3
+    when True, else q0 q2), ``crossing`` (Q,) the vertex index of each quad's edge crossing,
+    ``halves`` from :func:`_halves`.  Quads with a fanned vertex are split at their crossing into
+    four half-diamonds; two halves on the same mesh edge with a fanned end are cut along the
+    crossings instead.
+    """
+    a, b, partner = halves
+    split = fanned[quads].any(axis=1)
+    whole = quads[~split]
+    sec = second[~split, None]
+    faces = [
+        np.where(sec, whole[:, [1, 2, 3]], whole[:, [0, 1, 2]]),
+        np.where(sec, whole[:, [1, 3, 0]], whole[:, [0, 2, 3]]),
+    ]
+    half = np.flatnonzero(np.repeat(split, 4))
+    c = np.repeat(crossing, 4)
+    cut = (partner[half] >= 0) & (fanned[a[half]] | fanned[b[half]])
+    faces.append(np.stack([c[half[~cut]], a[half[~cut]], b[half[~cut]]], axis=1))
+    # the diamond (p, v, p', w) of the halves (p, v, w) and (p', w, v), cut along p p': each half
+    # gives the triangle at its first end
+    h = half[cut]
+    faces.append(np.stack([c[h], a[h], c[partner[h]]], axis=1))
+    return np.concatenate(faces)
+
+
+def _unfold(
+    quads: np.ndarray,
+    second: np.ndarray,
+    corner: np.ndarray,
+    crossing_points: np.ndarray,
+    x: np.ndarray,
+    mass: np.ndarray,
+    origin: np.ndarray,
+    h: np.ndarray,
+    rounds: int = UNFOLD_ROUNDS,
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """Faces and vertices with the vertices of intersecting faces turned into marching-cubes fans
+    at their mass points, round by round; and the number of intersecting pairs left.
+
+    ``quads`` (Q, 4), ``second`` (Q,) as in :func:`_hybrid`, ``corner`` as in :func:`_halves`;
+    ``crossing_points`` (Q, 3) the roots on the quads' edges (appended to the vertices, used where
+    a quad is split); ``x``, ``mass`` (V, 3).  The ends of a mesh edge in four quads start fanned
+    (their fans hold no such edge: the mesh becomes manifold there).
+    """
+    n = len(x)
+    crossing = n + np.arange(len(quads))
+    halves = _halves(quads, corner)
+    fanned = np.zeros(n, dtype=bool)
+    a, b, partner = halves
+    edge_key = np.minimum(a, b) * n + np.maximum(a, b)
+    _, inverse, count = np.unique(edge_key, return_inverse=True, return_counts=True)
+    crowded = count[inverse] > 2
+    fanned[a[crowded]] = fanned[b[crowded]] = True
+    verts = np.concatenate([x, crossing_points])
+    verts[fanned[:n].nonzero()[0]] = mass[fanned]
+    faces = _hybrid(quads, second, crossing, fanned, halves)
+    bad = _intersecting_pairs(verts, faces, origin, h)
+    for _ in range(rounds):
+        if len(bad) == 0:
+            break
+        touched = np.unique(faces[bad.ravel()])
+        touched = touched[touched < n]
+        new = touched[~fanned[touched]]
+        if len(new) == 0:
+            break  # only fans left among the intersecting faces
+        fanned[new] = True
+        verts[new] = mass[new]
+        faces = _hybrid(quads, second, crossing, fanned, halves)
+        # the faces that changed: those with a vertex fanned in this round, or with a crossing
+        moved = np.zeros(len(verts), dtype=bool)
+        moved[new] = True
+        changed = moved[faces].any(axis=1) | (faces >= n).any(axis=1)
+        bad = _intersecting_pairs(verts, faces, origin, h, changed)
+    return faces, verts, len(bad)
+
+
+def _without_folds(
+    faces: np.ndarray,
+    quads: np.ndarray,
+    corner: np.ndarray,
+    crossing_points: np.ndarray,
+    x: np.ndarray,
+    mass: np.ndarray,
+    origin: np.ndarray,
+    h: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """:func:`_unfold` for dual contouring's two triangles per quad: ``faces`` (2 Q, 3), the first
+    triangle of every quad, then the second (as ``dual_contouring._triangulate`` gives them)."""
+    if len(faces) != 2 * len(quads):
+        raise ValueError(f"_without_folds: expected two faces per quad, got {len(faces)} for {len(quads)} quads")
+    second = (faces[: len(quads)] == quads[:, [1, 2, 3]]).all(axis=1)
+    return _unfold(quads, second, corner, crossing_points, x, mass, origin, h)

@@ -48,7 +48,6 @@ from scipy import sparse
 from ..model import check_bounds
 from ..progress import Progress
 from .grid import _check_memory, _resolution, grid_axes
-from .folds import _without_folds
 from .mesh_type import Mesh
 from .octree import Samples, prune, sample_blocks
 from .roots import _bracketed_roots, _f64, _normals, _value_and_grad
@@ -259,7 +258,7 @@ class _Vertices(NamedTuple):
     """One slab's vertices and the quads of the crossing edges it owns (global vertex indices).
 
     x, mass, gradient (NaN where not smooth-projected) : (V, 3) per vertex; cell : (V, 3) int32 its cell;
-    quads : (Q, 4) int64 counter-clockwise about +axis; axis : (Q,) the edges' axes;
+    quads : (Q, 4) int64 counter-clockwise about +axis; axis : (Q,) int8 the edges' axes;
     inside_start : (Q,) bool f > 0 at the edge's start; node : (Q, 3) int32 its start node; points : (Q, 3)
     the edge's root.
     """
@@ -369,7 +368,7 @@ def _slab(
         smooth_gradient,
         vcell.astype(np.int32),
         vert[own],
-        a[own],
+        a[own].astype(np.int8),
         s.f0[own] > 0,
         s.edge_node[own].astype(np.int32),
         points[own],
@@ -390,9 +389,14 @@ def _contour(
 ) -> Mesh:
     """The mesh from all slabs' vertices and quads (``parts``, emptied): triangles, unbiasing, folds,
     compaction, grad f."""
-    v = _Vertices(*(np.concatenate(column) for column in zip(*parts)))
-    parts.clear()  # the slabs' copies
-    ncell = np.asarray(cells, dtype=np.int64)
+    columns = [list(column) for column in zip(*parts)]
+    parts.clear()
+    whole = []
+    for column in columns:  # field by field, each slab's copy freed once joined: memory for one copy
+        whole.append(np.concatenate(column))
+        column.clear()
+    v = _Vertices(*whole)
+    del columns, whole
     x, mass, smooth_gradient = v.x, v.mass, v.gradient
     # quads oriented outward (toward f <= 0)
     outward = np.where(v.inside_start, 1.0, -1.0)  # +axis when the start is inside
@@ -404,11 +408,6 @@ def _contour(
     del direction, outward
     smooth_gradient[(x == mass).all(axis=1)] = np.nan  # sent back to its mass point: not smooth-projected
     x = _unbias(f, x, faces, smooth_gradient, v.cell, lo, hi, spacing, device)
-    # where quads pierce each other, the marching-cubes fans of the cells involved (adds crossings)
-    positive = v.node.astype(np.int64)  # the end of each quad's edge with f > 0 (pairs crossings on a face)
-    positive[np.arange(len(quads)), v.axis] += ~v.inside_start
-    corner = (positive[:, 0] * (ncell[1] + 1) + positive[:, 1]) * (ncell[2] + 1) + positive[:, 2]
-    faces, x, _ = _without_folds(faces, quads, corner, v.points, x, mass, lo, spacing)
     used = np.unique(faces)
     index = np.full(len(x), -1, dtype=np.int64)
     index[used] = np.arange(len(used))
@@ -544,7 +543,8 @@ def _unbias(
     if not smooth.any():
         return x
     length = np.linalg.norm(gradient, axis=1)
-    corners = [faces[smooth, k] for k in range(3)]  # 1-D gathers per coordinate (fancy (F, 3, 3) ones cost more)
+    # 1-D gathers per coordinate (fancy (F, 3, 3) ones cost more); int32 indices: half the memory
+    corners = [faces[smooth, k].astype(np.int32) for k in range(3)]
     del smooth
     tri_count = len(corners[0])
     columns = [np.ascontiguousarray(x[:, i]) for i in range(3)]

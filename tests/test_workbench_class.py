@@ -346,6 +346,8 @@ def test_slice_plots_use_readable_fonts_and_robust_colour_ranges():
         for t in texts:
             if t.get_text():
                 assert t.get_fontsize() >= 10, (t.get_text(), t.get_fontsize())
+                # the PNG is shown at its own size, one pixel per CSS pixel (1/96 in): 10 pt is 13.3 px
+                assert t.get_fontsize() * fig.dpi / 72 >= 10 * 96 / 72 - 1e-9, (t.get_text(), fig.dpi)
     top = [ax for ax in fig.axes if ax.get_title().startswith("delta_1")][0]
     levels = top.collections[0].levels if hasattr(top.collections[0], "levels") else top.collections[0].get_array()
     span = colour_range(delta, percentiles=(1, 99), diverging=True)

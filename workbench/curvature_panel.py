@@ -22,11 +22,13 @@ import numpy as np
 from pyfrep_core import Model, polygonize
 
 from ._threads import LatestWorker, MainThread
-from .charts import figure_png, new_figure
+from .charts import DPI, figure_png, new_figure
 from .colours import ColourRange, colour_range
 from .view import MeshView, shows_inside
 
 __all__ = ["CurvaturePanel", "curvature_panel", "QUANTITIES"]
+
+HISTOGRAM_PX = 420  # the histogram's width on the page
 
 # label -> field of pyfrep_core.curvature.Curvatures
 QUANTITIES = {"mean H": "H", "Gaussian K": "K", "kmin": "kmin", "kmax": "kmax"}
@@ -105,7 +107,8 @@ class CurvaturePanel(widgets.VBox):
             continuous_update=False,
             layout=widgets.Layout(width="380px"),
         )
-        self.histogram = widgets.Image(format="png", layout=widgets.Layout(width="420px", display="none"))
+        # shown at its own size (HISTOGRAM_PX at charts.DPI): its 10 pt fonts stay 10 pt
+        self.histogram = widgets.Image(format="png", layout=widgets.Layout(width=f"{HISTOGRAM_PX}px", display="none"))
         self.status = widgets.HTML("computing curvatures...")
         self.colours: ColourRange | None = None
         self.view = MeshView(backend=backend, size=size, section=shows_inside(self.models[next(iter(self.models))]))
@@ -211,7 +214,7 @@ class CurvaturePanel(widgets.VBox):
         """Histogram of the defined values over the colour range, bars in the map's colours."""
         from matplotlib import colormaps
 
-        fig = new_figure(4.6, 3.0)
+        fig = new_figure(HISTOGRAM_PX / DPI, 3.0)
         ax = fig.add_subplot()
         counts, edges = np.histogram(np.clip(values, span.lo, span.hi), bins=60, range=span.clim)
         centres = 0.5 * (edges[1:] + edges[:-1])

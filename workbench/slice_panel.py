@@ -143,8 +143,12 @@ def slice_figure(
     # each plot as tall as the plane's aspect asks (the ellipse's box is 2.5 times wider than tall),
     # plus its title and tick labels
     aspect = float(np.ptp(v) / np.ptp(u)) if np.ptp(u) > 0 else 1.0
-    height = 2.7 * min(max(aspect, 0.3), 1.5) + 1.3
-    fig = new_figure(3.8 * cols, height * blocks * per + 0.2, dpi=80)
+    # inches per column: the plot, and about 1.9 for its tick labels and colour bar; the row's
+    # height: the plot's at the plane's aspect, and about 1 for the two-line title and the x ticks
+    width = 4.0
+    height = (width - 1.9) * min(max(aspect, 0.3), 1.5) + 1.0
+    # at charts.DPI FONT points are FONT points on the page (the 80 dpi used before made 10 pt 8.3)
+    fig = new_figure(width * cols, height * blocks * per + 0.2)  # charts.DPI
 
     def panel(row: int, col: int) -> Any:
         ax = fig.add_subplot(blocks * per, cols, row * cols + col + 1)

@@ -22,9 +22,23 @@ the paper's microstructure, each against marching cubes at the same voxel size: 
 triangles, volume error (closed forms: the Fig. 1 part; the gyroid solid over [-1, 1]^3 is half
 the cube, 4, since f(-x) = -f(x)), pairs of self-intersecting faces (pymeshlab's candidates
 confirmed by VTK's collision filter), and peak memory
-(the child process's VmHWM less its resident size before meshing).  The peer named by the
-issue, libfive, is not on PyPI as a library (its Python package needs the C++ build): "peer not
-available" is printed instead of its figures.
+(the child process's VmHWM less its resident size before meshing).
+
+The peer named by the issue, libfive (octree dual contouring in C++), runs when ``LIBFIVE_LIB``
+names its ``libfive.so`` (or the build folder): a row ``lf`` under each case up to 512^3 with the
+same figures, from ``libfive_tree_render_mesh`` through ctypes on the same R-function field
+negated (libfive's solid is f <= 0), resolution (n - 1) / side voxels per unit, so its octree has
+n cells along the shortest side where our grid has n - 1 (n = 128, 256); its C API meshes
+with 8 worker threads, here pinned to at most 2 CPUs (``LIBFIVE_THREADS=1``: one thread).
+Without it, a line says the peer was not run.  libfive is not on PyPI as a library; to build
+it in a temporary folder (Debian)::
+
+    apt-get install -y cmake g++ libeigen3-dev libboost-dev libpng-dev pkg-config
+    git clone https://github.com/libfive/libfive /tmp/libfive_src
+    cmake -S /tmp/libfive_src -B /tmp/libfive_build -DCMAKE_BUILD_TYPE=Release -DBUILD_STUDIO_APP=OFF \\
+        -DBUILD_GUILE_BINDINGS=OFF -DBUILD_PYTHON_BINDINGS=OFF -DBUILD_TESTS=OFF -DENABLE_DEBUG=OFF
+    make -C /tmp/libfive_build -j2 libfive
+    LIBFIVE_LIB=/tmp/libfive_build/libfive/src/libfive.so .venv/bin/python benchmarks/mesh.py dc
 
 Run: ``.venv/bin/python benchmarks/mesh.py [runs]`` (PYFREP_QUICK=1: 3 runs);
 ``benchmarks/mesh.py dc [runs]``: the dual-contouring table only.
@@ -212,13 +226,271 @@ def measure(case: str, method: str, n: int, runs: int) -> tuple[float, int, floa
     return tuple(json.loads(out.stdout.strip().splitlines()[-1]))
 
 
+# ----------------------------------------------------------------------------- libfive, the peer
+
+
+def _libfive_library():
+    """libfive's C library from ``LIBFIVE_LIB`` (libfive.so, or a folder holding it: the build or bindings
+    folder), with the signatures used here; None when the variable is unset."""
+    import ctypes
+    import glob
+
+    where = os.environ.get("LIBFIVE_LIB", "")
+    if not where:
+        return None
+    path = where
+    if os.path.isdir(where):
+        # a build folder holds libfive/src/libfive.so; its bindings folder is libfive/bind/python
+        found = [
+            p
+            for pattern in ("libfive.so", "src/libfive.so", "libfive/src/libfive.so", "../../src/libfive.so")
+            for p in glob.glob(os.path.join(where, pattern))
+        ]
+        if not found:
+            raise FileNotFoundError(f"LIBFIVE_LIB={where!r}: no libfive.so in that folder or its build tree")
+        path = found[0]
+    lib = ctypes.CDLL(os.path.abspath(path))
+
+    class Interval(ctypes.Structure):
+        _fields_ = [("lower", ctypes.c_float), ("upper", ctypes.c_float)]
+
+    class Region(ctypes.Structure):
+        _fields_ = [("X", Interval), ("Y", Interval), ("Z", Interval)]
+
+    class Mesh(ctypes.Structure):
+        _fields_ = [
+            ("verts", ctypes.POINTER(ctypes.c_float)),  # (x, y, z) float triples
+            ("tris", ctypes.POINTER(ctypes.c_uint32)),  # (a, b, c) index triples
+            ("tri_count", ctypes.c_uint32),
+            ("vert_count", ctypes.c_uint32),
+        ]
+
+    tree = ctypes.c_void_p
+    for name, args, result in (
+        ("libfive_tree_x", [], tree),
+        ("libfive_tree_y", [], tree),
+        ("libfive_tree_z", [], tree),
+        ("libfive_tree_const", [ctypes.c_float], tree),
+        ("libfive_tree_unary", [ctypes.c_int, tree], tree),
+        ("libfive_tree_binary", [ctypes.c_int, tree, tree], tree),
+        ("libfive_tree_delete", [tree], None),
+        ("libfive_opcode_enum", [ctypes.c_char_p], ctypes.c_int),
+        ("libfive_tree_render_mesh", [tree, Region, ctypes.c_float], ctypes.POINTER(Mesh)),
+        ("libfive_tree_render_mesh_st", [tree, Region, ctypes.c_float], ctypes.POINTER(Mesh)),
+        ("libfive_mesh_delete", [ctypes.POINTER(Mesh)], None),
+    ):
+        getattr(lib, name).argtypes = args
+        getattr(lib, name).restype = result
+    lib.Region, lib.Interval, lib.path = Region, Interval, path
+    return lib
+
+
+class _Five:
+    """A libfive expression (a C handle, freed with the object) with the arithmetic the models need."""
+
+    lib = None
+
+    def __init__(self, ptr):
+        if not ptr:
+            raise RuntimeError("libfive returned no tree")
+        self.ptr = ptr
+
+    def __del__(self):
+        self.lib.libfive_tree_delete(self.ptr)
+
+    @classmethod
+    def wrap(cls, value) -> _Five:
+        return value if isinstance(value, _Five) else cls(cls.lib.libfive_tree_const(float(value)))
+
+    def _op(self, name: str, *others) -> _Five:
+        code = self.lib.libfive_opcode_enum(name.encode())
+        if not others:
+            return _Five(self.lib.libfive_tree_unary(code, self.ptr))
+        other = _Five.wrap(others[0])  # held until the call returns: its handle is freed with it
+        return _Five(self.lib.libfive_tree_binary(code, self.ptr, other.ptr))
+
+    def __add__(self, other):
+        return self._op("add", other)
+
+    def __radd__(self, other):
+        return _Five.wrap(other)._op("add", self)
+
+    def __sub__(self, other):
+        return self._op("sub", other)
+
+    def __rsub__(self, other):
+        return _Five.wrap(other)._op("sub", self)
+
+    def __mul__(self, other):
+        return self._op("mul", other)
+
+    def __rmul__(self, other):
+        return _Five.wrap(other)._op("mul", self)
+
+    def __truediv__(self, other):
+        return self._op("div", other)
+
+    def __rtruediv__(self, other):
+        return _Five.wrap(other)._op("div", self)
+
+    def __neg__(self):
+        return self._op("neg")
+
+    def square(self):
+        return self._op("square")
+
+    def sqrt(self):
+        return self._op("sqrt")
+
+    def sin(self):
+        return self._op("sin")
+
+    def cos(self):
+        return self._op("cos")
+
+
+# The benchmark's models written again with libfive's operations: the same R-functions (operations.py)
+# and primitives (primitives.py, lattices.py, models/), so the same field, negated (libfive: f <= 0 inside).
+def _r_and(a, b):
+    return a + b - (a.square() + b.square()).sqrt()
+
+
+def _r_or(a, b):
+    return a + b + (a.square() + b.square()).sqrt()
+
+
+def _five_block(x, y, z, lo: float, size: float):
+    sx, sy, sz = ((t - lo) * (size - (t - lo)) for t in (x, y, z))
+    return _r_and(_r_and(sx, sy), sz)
+
+
+def _five_fig1(x, y, z, r: float = 0.5):
+    t1 = _r_and(1.0 - (x.square() + y.square() + z.square()), _five_block(x, y, z, -0.75, 1.5))
+    for cylinder in (r * r - y.square() - z.square(), r * r - x.square() - z.square(), r * r - x.square() - y.square()):
+        t1 = _r_and(t1, -cylinder)
+    return t1
+
+
+def _five_gyroid_block(x, y, z):
+    X, Y, Z = (2.0 * np.pi * t for t in (x, y, z))
+    g = -(X.sin() * Y.cos() + Y.sin() * Z.cos() + Z.sin() * X.cos())
+    return _r_and(g, _five_block(x, y, z, -1.0, 2.0))
+
+
+def _five_microstructure(x, y, z, scale1=9.0, scale2=3.0, freq1=0.75, freq2=0.85, radius=10.0, shell=0.15):
+    sp = 1.0 - (x.square() + y.square() + z.square()) / (radius * radius)
+    skin = _r_and(sp, -(sp - shell))
+    scale = scale1 * (1.0 - sp) + scale2 * sp
+    c = freq1 * (1.0 - sp) + freq2 * sp
+    xs, ys, zs = ((t * scale).sin() - c for t in (x, y, z))
+    xrods, yrods, zrods = _r_and(ys, zs), _r_and(xs, zs), _r_and(xs, ys)
+    blend = _r_or(xrods, zrods) + 1.0 / (1.0 + (xrods / 3.0).square() + (zrods / 3.0).square())  # blendUnion
+    grid = _r_or(blend, yrods)
+    return _r_and(_r_or(skin, _r_and(sp, grid)), y)
+
+
+LIBFIVE_MODELS = {"fig1": _five_fig1, "gyroid": _five_gyroid_block, "microstructure": _five_microstructure}
+
+
+def _libfive_child(case: str, n: int, runs: int) -> None:
+    """libfive's mesh of a case at the voxel size of an n^3 grid: seconds (median and best), triangles,
+    volume, flagged faces, MiB; on at most 2 CPUs (its C API meshes with 8 worker threads)."""
+    import json
+
+    from pyfrep_core.meshing import Mesh
+
+    lib = _libfive_library()
+    _Five.lib = lib
+    cpus = sorted(os.sched_getaffinity(0))[:2]
+    os.sched_setaffinity(0, cpus)
+    _, bounds, _ = CASES[case]
+    if bounds is None:
+        bounds = CASES[case][0]().bounds
+    lo, hi = np.asarray(bounds, dtype=np.float64)
+    region = lib.Region(*(lib.Interval(a, b) for a, b in zip(lo, hi)))
+    # libfive halves every side of the region until the shortest is below 1 / resolution: with
+    # (n - 1) / side voxels per unit, 2^ceil(log2(n - 1)) cells along it (n = 128, 256: n cells, ours n - 1)
+    resolution = (n - 1) / float((hi - lo).min())
+    shape = -LIBFIVE_MODELS[case](
+        *(_Five(lib.libfive_tree_x()), _Five(lib.libfive_tree_y()), _Five(lib.libfive_tree_z()))
+    )
+    render = (
+        lib.libfive_tree_render_mesh
+        if os.environ.get("LIBFIVE_THREADS", "") != "1"
+        else lib.libfive_tree_render_mesh_st
+    )
+
+    def mesh_once():
+        out = render(shape.ptr, region, resolution)
+        if not out:
+            raise RuntimeError(f"libfive returned no mesh for {case} at {n}^3")
+        m = out.contents
+        verts = np.ctypeslib.as_array(m.verts, shape=(m.vert_count * 3,)).reshape(-1, 3).astype(np.float64)
+        tris = np.ctypeslib.as_array(m.tris, shape=(m.tri_count * 3,)).reshape(-1, 3).astype(np.int64)
+        lib.libfive_mesh_delete(out)
+        return verts, tris
+
+    before = _resident_kib("VmRSS")
+    out = mesh_once()  # warm-up
+    times = []
+    for _ in range(runs):
+        t0 = time.perf_counter()
+        out = mesh_once()
+        times.append(time.perf_counter() - t0)
+    peak = _resident_kib("VmHWM") - before
+    mesh = Mesh(*out)
+    sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "tests"))
+    from test_octree_dc import self_intersecting_pairs
+
+    flagged = len(self_intersecting_pairs(mesh))
+    print(json.dumps([statistics.median(times), min(times), mesh.n_faces, mesh.volume(), flagged, peak / 1024]))
+
+
+def libfive_note() -> bool:
+    """Print whether the libfive peer runs (and from where); True when it does."""
+    try:
+        lib = _libfive_library()
+    except OSError as error:
+        print(f"  libfive: LIBFIVE_LIB could not be loaded ({error}); peer not run")
+        return False
+    if lib is None:
+        print(
+            "  libfive: peer not run (set LIBFIVE_LIB to a libfive.so built as in this file's docstring "
+            "to get its figures in the same run)"
+        )
+        return False
+    threads = "1 thread" if os.environ.get("LIBFIVE_THREADS", "") == "1" else "its 8 worker threads on at most 2 CPUs"
+    print(f"  libfive: {lib.path}, libfive_tree_render_mesh ({threads}), the same R-function fields negated")
+    return True
+
+
+def libfive_row(case: str, n: int, runs: int, ours: dict[str, float]) -> str:
+    """libfive's line for a case, with our seconds over libfive's for each of our methods measured."""
+    import json
+    import subprocess
+
+    out = subprocess.run(
+        [sys.executable, __file__, "libfive-child", case, str(n), str(runs)], capture_output=True, text=True
+    )
+    if out.returncode:
+        return f"libfive failed: {out.stderr.strip().splitlines()[-1] if out.stderr.strip() else out.returncode}"
+    seconds, best, faces, volume, flagged, mib = json.loads(out.stdout.strip().splitlines()[-1])
+    exact = CASES[case][2]
+    err = f"volume error {volume - exact:+.1e}" if exact is not None else f"volume {volume:.4f}"
+    ratios = ", ".join(f"{m} / libfive = {s / seconds:.2f}x" for m, s in ours.items())
+    return (
+        f"lf {seconds:7.3f} s {faces:9d} triangles {err} self-intersecting pairs {flagged} {mib:6.0f} MiB"
+        f"  (best {best:.3f} s; {ratios})"
+    )
+
+
 def dual_contouring_table(runs: int) -> None:
     print(
         "dual contouring (octree, certified pruning) against marching cubes at the same voxel size "
         f"(median of {runs} runs, each case in its own process; load average "
         f"{', '.join(f'{x:.2f}' for x in os.getloadavg())})"
     )
-    print("  libfive: peer not available")
+    peer = libfive_note()
     rows = [("fig1", 128), ("fig1", 256), ("gyroid", 128), ("microstructure", 128)]
     if not QUICK:
         rows += [("fig1", 512), ("fig1", 1024)]
@@ -239,12 +511,16 @@ def dual_contouring_table(runs: int) -> None:
             )
         ratio = f"  mc / dc = {figures['mc'] / figures['dc']:.2f}x" if len(figures) == 2 else ""
         print(f"  {case:>14} {n:4d}^3  " + "\n                         ".join(line) + ratio)
+        if peer and n <= 512:
+            print("                         " + libfive_row(case, n, runs if n <= 256 else 1, figures))
     print(f"  load average after the runs: {', '.join(f'{x:.2f}' for x in os.getloadavg())}")
 
 
 if __name__ == "__main__":
     if len(sys.argv) > 1 and sys.argv[1] == "child":
         _child(sys.argv[2], sys.argv[3], int(sys.argv[4]), int(sys.argv[5]))
+    elif len(sys.argv) > 1 and sys.argv[1] == "libfive-child":
+        _libfive_child(sys.argv[2], int(sys.argv[3]), int(sys.argv[4]))
     elif len(sys.argv) > 1 and sys.argv[1] == "dc":
         dual_contouring_table(int(sys.argv[2]) if len(sys.argv) > 2 else (3 if QUICK else 5))
     else:

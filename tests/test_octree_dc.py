@@ -14,7 +14,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from pyfrep_core import block, gyroid, intersection, polygonize, project_to_surface, sphere, torusZ
+from pyfrep_core import SchwarzD, block, gyroid, intersection, polygonize, project_to_surface, sphere, torusZ
 from pyfrep_core.meshing.grid import grid_axes
 from pyfrep_core.meshing.octree import prune
 from pyfrep_core.models import fig1_part
@@ -287,9 +287,8 @@ def torus_case():
     return (lambda x: torusZ(x, R=0.6, r=0.25)), dist, pts
 
 
-def gyroid_case():
-    f = lambda x: gyroid(x)  # noqa: E731
-    rng = np.random.default_rng(2)
+def gyroid_case(f=lambda x: gyroid(x), seed=2):
+    rng = np.random.default_rng(seed)
     start = torch.as_tensor(rng.uniform(-0.8, 0.8, (4000, 3)))
     feet = project_to_surface(f, start, warn=False)
     inner = feet.points.numpy()[feet.converged.numpy() & (np.abs(feet.points.numpy()) < 0.85).all(axis=1)]
@@ -303,7 +302,13 @@ def gyroid_case():
     return f, dist, inner
 
 
-@pytest.mark.parametrize("case", [sphere_case, torus_case, gyroid_case], ids=["sphere", "torus", "gyroid"])
+def schwarz_d_case():
+    return gyroid_case(lambda x: SchwarzD(x), seed=3)  # the same Newton-foot distances
+
+
+@pytest.mark.parametrize(
+    "case", [sphere_case, torus_case, gyroid_case, schwarz_d_case], ids=["sphere", "torus", "gyroid", "SchwarzD"]
+)
 def test_smooth_shapes_are_as_close_to_the_surface_as_marching_cubes(case):
     f, dist, surface = case()
     n = 64  # 36 cells per period of the gyroid (at 18, n = 40, its worst edge midpoint is 1% farther than MC's)

@@ -47,6 +47,7 @@ from scipy import sparse
 
 from ..model import check_bounds
 from ..progress import Progress
+from .folds import _without_folds
 from .grid import _check_memory, _resolution, grid_axes
 from .mesh_type import Mesh
 from .octree import Samples, prune, sample_blocks
@@ -397,6 +398,7 @@ def _contour(
         column.clear()
     v = _Vertices(*whole)
     del columns, whole
+    ncell = np.asarray(cells, dtype=np.int64)
     x, mass, smooth_gradient = v.x, v.mass, v.gradient
     # quads oriented outward (toward f <= 0)
     outward = np.where(v.inside_start, 1.0, -1.0)  # +axis when the start is inside
@@ -408,6 +410,11 @@ def _contour(
     del direction, outward
     smooth_gradient[(x == mass).all(axis=1)] = np.nan  # sent back to its mass point: not smooth-projected
     x = _unbias(f, x, faces, smooth_gradient, v.cell, lo, hi, spacing, device)
+    # where quads pierce each other, the marching-cubes fans of the cells involved (adds crossings)
+    positive = v.node.astype(np.int64)  # the end of each quad's edge with f > 0 (pairs crossings on a face)
+    positive[np.arange(len(quads)), v.axis] += ~v.inside_start
+    corner = (positive[:, 0] * (ncell[1] + 1) + positive[:, 1]) * (ncell[2] + 1) + positive[:, 2]
+    faces, x, _ = _without_folds(faces, quads, corner, v.points, x, mass, lo, spacing)
     used = np.unique(faces)
     index = np.full(len(x), -1, dtype=np.int64)
     index[used] = np.arange(len(used))

@@ -31,6 +31,9 @@ from ._threads import BackgroundRun, MainThread
 from .charts import LineChart
 from .view import MeshView
 
+# a wrapped progress line at text spacing (an HTML widget's line is a control high, 28 px)
+PROGRESS_STYLE = "style='display:inline-block;line-height:1.35'"
+
 __all__ = ["FittingPanel", "fitting_panel", "EFFORT", "POSES", "STARTS"]
 
 # fit() settings per effort level: "quick" answers in seconds, "paper" uses the paper's budgets.
@@ -455,7 +458,8 @@ class FittingPanel(widgets.VBox):
         self.bar.description = event.stage
         first = "" if self._first_loss is None else f" (first {self._first_loss:.3e})"
         self.progress_text.value = (
-            f"<span class='fit-progress'>{html.escape(event.stage)} {event.step + 1}/{event.total} &middot; "
+            f"<span class='fit-progress' {PROGRESS_STYLE}>"
+            f"{html.escape(event.stage)} {event.step + 1}/{event.total} &middot; "
             f"loss {event.loss:.3e}{first} &middot; {self.loss_chart.n_points} points charted</span>"
         )
 
@@ -498,7 +502,7 @@ class FittingPanel(widgets.VBox):
         self.table.value = self._table(result)
         first = "" if self._first_loss is None else f" (first {self._first_loss:.3e})"
         self.progress_text.value = (  # the last word on the run: no stale 'polish 3/20'
-            f"<span class='fit-progress'>{self.bar.description}: {', '.join(result.stages)} &middot; "
+            f"<span class='fit-progress' {PROGRESS_STYLE}>{self.bar.description}: {', '.join(result.stages)} &middot; "
             f"loss {result.loss:.3e}{first} &middot; {self.loss_chart.n_points} points charted</span>"
         )
         stopped = " <b>(stopped early)</b>" if result.stopped else ""
@@ -511,20 +515,16 @@ class FittingPanel(widgets.VBox):
                 " &mdash; most points: the robust noise scale is about 0 (noise-free points?); "
                 "use the l2 loss or give a loss scale"
             )
-        reason = (
-            f"<br><small>standard errors: {html.escape(result.std_error_reason)}</small>"
-            if result.std_error_reason
-            else ""
-        )
+        reason = f"<br>standard errors: {html.escape(result.std_error_reason)}" if result.std_error_reason else ""
         self.status.value = (
             f"<span class='fit-done'>fit done in {time.perf_counter() - self._t0:.1f} s{stopped} "
             f"on {html.escape(self.data_name)}: "
             f"loss {result.loss:.3e}, stages {', '.join(result.stages)}; "
             f"{html.escape(result.residual)} residual, {html.escape(result.loss_function)} loss, "
             f"{len(result.starts) or 1} start(s); RMS {result.rms:.3g}{unit}, max {result.max_distance:.3g}{unit}; "
-            f"{n_out} outliers{found} drawn in red</span><br><small>cloud coloured by the {what}{unit} of the "
+            f"{n_out} outliers{found} drawn in red</span><br>cloud coloured by the {what}{unit} of the "
             f"inliers (viridis, 0 dark to {top:.2g} yellow, 99th percentile); fitted surface translucent; "
-            f"polish: {html.escape(result.termination)}</small>{reason}"
+            f"polish: {html.escape(result.termination)}{reason}"
         )
 
     def _table(self, result: Any) -> str:

@@ -34,7 +34,7 @@ __all__ = ["ModelPanel", "check_model", "model_panel"]
 SOURCE = "<model editor"  # the file name of every run's code starts so: its frames are the user's
 
 HELP = (
-    "<details><summary><b>What am I looking at?</b></summary><small>"
+    "<details style='font-size:13px;line-height:1.35'><summary><b>What am I looking at?</b></summary>"
     "A model is a Python function <code>f(x, **params)</code> on torch tensors: <code>x</code> is an (N, 3) "
     "array of points, the result (N,) values with <b>f &ge; 0 inside</b> the solid and f = 0 on its surface "
     "(the paper's section 2). <code>@model(bounds=..., name=Param(default, lower, upper, label=...))</code> "
@@ -43,8 +43,9 @@ HELP = (
     "here and in every tab. Build shapes from the catalogue (<code>sphere</code>, <code>block</code>, "
     "<code>cylX</code>, <code>gyroid</code>, ...) with the R-functions <code>union</code>, "
     "<code>intersection</code>, <code>difference</code>, or write the formula yourself with "
-    "<code>p[:, 0]</code>, <code>p[:, 1]</code>, <code>p[:, 2]</code>. Tab moves the focus: indent with spaces."
-    "</small></details>"
+    "<code>p[:, 0]</code>, <code>p[:, 1]</code>, <code>p[:, 2]</code>. Tab and Shift-Tab indent and "
+    "dedent (4 spaces, the selected lines)."
+    "</details>"
 )
 
 
@@ -191,7 +192,7 @@ class ModelPanel(widgets.VBox):
         self.run_button = widgets.Button(
             description="Run", button_style="success", icon="play", tooltip="build the model and open it in every tab"
         )
-        self.status = widgets.HTML("<small>edit the code, then Run</small>")
+        self.status = widgets.HTML("edit the code, then Run")
         self.error = widgets.HTML()
         self.preview_box = widgets.VBox([widgets.HTML("<i>Run shows the model here, with one slider per Param.</i>")])
         self.template.observe(lambda change: self.load_template(change["new"]), names="value")
@@ -213,7 +214,7 @@ class ModelPanel(widgets.VBox):
         """Put template ``name`` in the editor (replacing its code)."""
         self.editor.value = TEMPLATES[name]
         self.error.value = ""
-        self.status.value = "<small>edit the code, then Run</small>"
+        self.status.value = "edit the code, then Run"
 
     # -- Run ----------------------------------------------------------------------------------
     def run(self, code: str | None = None) -> Model | None:

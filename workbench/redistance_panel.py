@@ -25,6 +25,9 @@ from ._threads import BackgroundRun, MainThread
 from .charts import LineChart
 from .slice_panel import AXES, draw_slices, field_functions, plane_points
 
+# a wrapped progress line at text spacing (an HTML widget's line is a control high, 28 px)
+PROGRESS_STYLE = "style='display:inline-block;line-height:1.35'"
+
 __all__ = ["MODES", "RedistancePanel", "redistance_panel", "trained_network"]
 
 # redistance's modes as the panel offers them: menu label, and what the mode trains on
@@ -144,11 +147,11 @@ class RedistancePanel(widgets.VBox):
 
     def _show_bounds(self) -> None:
         lo, hi = self.model.bounds
-        self.bounds.value = f"<small>bounds {tuple(lo)} to {tuple(hi)}</small>"
+        self.bounds.value = f"<span style='font-size:13px'>bounds {tuple(lo)} to {tuple(hi)}</span>"
 
     def _show_mode(self) -> None:
         text = MODES[self.mode.value][1]
-        self.mode_help.value = f"<div style='font-size:12px;line-height:1.3;color:#333'>{text}</div>"
+        self.mode_help.value = f"<div style='font-size:13px;line-height:1.3;color:#333'>{text}</div>"
 
     # -- training -----------------------------------------------------------------------------
     def start(self, **overrides: Any) -> BackgroundRun | None:
@@ -218,7 +221,8 @@ class RedistancePanel(widgets.VBox):
         self.bar.value = min(event.step + 1, event.total)
         first = "" if self._first_loss is None else f" (first {self._first_loss:.3e})"
         self.progress_text.value = (
-            f"<span class='train-progress'>{html.escape(event.stage)} {event.step + 1}/{event.total} &middot; "
+            f"<span class='train-progress' {PROGRESS_STYLE}>"
+            f"{html.escape(event.stage)} {event.step + 1}/{event.total} &middot; "
             f"loss {event.loss:.3e}{first}</span>"
         )
 

@@ -108,7 +108,7 @@ class PushPullControls:
 
     def _say(self, text: str) -> None:
         """The status line (its own line height: the widget's is one control high)."""
-        self.status.value = f"<div style='line-height:1.35;font-size:12px'><b>push-pull</b>: {text}</div>"
+        self.status.value = f"<div style='line-height:1.35;font-size:13px'><b>push-pull</b>: {text}</div>"
 
     def forget(self) -> None:
         """No point picked: the pull at 0 and disabled, the marker hidden, the instruction shown."""

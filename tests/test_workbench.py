@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import importlib
 import importlib.util
 import io
@@ -13,7 +14,7 @@ import torch
 from PIL import Image
 
 import workbench
-from pyfrep_core import Param, model, sphere
+from pyfrep_core import Param, model, polygonize, sphere
 from pyfrep_core.models import fig1_part
 from pyfrep_core.sensitivity import normal_velocity
 from workbench.app import App
@@ -246,8 +247,12 @@ def test_reset_bounds_and_export(panel, tmp_path):
         panel.export_format.value = fmt
         path = panel.export(str(tmp_path / f"part.{fmt}"))
         back = pv.read(path)
-        assert back.n_cells == panel.mesh.n_faces, fmt
+        assert back.n_cells == panel.exported.n_faces, fmt
         assert "saved to" in panel.download.value and str(tmp_path) in panel.download.value
+    # the file is dual contouring's mesh (the part has interval bounds): sharp edges kept
+    job = panel.last_job
+    dc = polygonize(functools.partial(fig1_part, **job["params"]), job["bounds"], 40, method="dc", progress=False)
+    np.testing.assert_array_equal(panel.exported.faces, dc.faces)
 
 
 def test_any_user_model_and_errors():

@@ -327,8 +327,8 @@ def test_export_is_a_download_served_from_outside_the_repository(monkeypatch):
             saved = Path(path).with_name(f"back.{fmt}")
             saved.write_bytes(data)
             back = load_mesh(str(saved))
-            assert back.n_faces == p.mesh.n_faces
-            np.testing.assert_allclose(np.sort(back.vertices, axis=0), np.sort(p.mesh.vertices, axis=0), atol=1e-6)
+            assert back.n_faces == p.exported.n_faces
+            np.testing.assert_allclose(np.sort(back.vertices, axis=0), np.sort(p.exported.vertices, axis=0), atol=1e-6)
     finally:
         p.view.close()
     assert "fig1_part." not in _repo_status(str(ROOT))  # no export anywhere in the working tree

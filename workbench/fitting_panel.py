@@ -406,7 +406,10 @@ class FittingPanel(widgets.VBox):
             fitted = result.model if result.model is not None else model
             shown = result.points if result.points is not None else points
             distance = fit_error(fitted, shown, result.params, residual=result.residual)
-            surface = polygonize(lambda x: fitted(x, **result.params), _box(shown), self.resolution, progress=False)
+            # dual contouring where the fitted model has interval bounds (its sharp edges kept)
+            surface = polygonize(
+                lambda x: fitted(x, **result.params), _box(shown), self.resolution, method="auto", progress=False
+            )
             return result, surface, shown, distance
 
         self.run = BackgroundRun(target, lambda out, err: self._finished(out, err, generation), self.main).start()

@@ -195,6 +195,7 @@ class ShapePanel(widgets.VBox):
         self.warm_up_errors: dict[str, Exception] = {}  # model name -> why it stays eager
         self.export_dir = export_dir
         self.mesh: Mesh | None = None
+        self.exported: Mesh | None = None  # the last mesh written by export()
         self.scalars: np.ndarray | None = None
         self.last_moved: str | None = model.names[0] if model.names else None
         self.remesh_count = 0
@@ -463,14 +464,27 @@ class ShapePanel(widgets.VBox):
         self.request()
 
     def export(self, path: str | None = None) -> str:
-        """Write the shown mesh as STL/OBJ/PLY and offer it as a browser download; returns the path.
+        """Write the shown shape as STL/OBJ/PLY and offer it as a browser download; returns the path.
 
-        With no ``path`` (and no ``export_dir``) the file goes to the kernel's temporary export
-        directory, never the working tree, and the link streams it (:mod:`workbench.downloads`).
+        The file holds ``polygonize(..., method="auto")`` of the shown parameters, bounds and full
+        resolution: dual contouring (sharp edges and corners kept) where the model has interval
+        bounds, else the marching-cubes mesh; it is kept as ``exported``.  With no ``path`` (and no
+        ``export_dir``) the file goes to the kernel's temporary export directory, never the working
+        tree, and the link streams it (:mod:`workbench.downloads`).
         """
-        if self.mesh is None or self.mesh.is_empty():
+        if self.mesh is None or self.mesh.is_empty() or self.last_job is None:
             self.status.value = "<span style='color:#b00'>nothing to export yet</span>"
             return ""
+        job = self.last_job
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # an empty mesh is reported by the shown one
+            self.exported = polygonize(
+                functools.partial(job["model"], **job["params"]),
+                job["bounds"],
+                int(self.resolution.value),
+                method="auto",
+                progress=False,
+            )
         from .downloads import downloads
 
         fmt = self.export_format.value
@@ -478,7 +492,7 @@ class ShapePanel(widgets.VBox):
         served = path is None and self.export_dir is None
         if path is None:
             path = downloads().new_path(name) if served else os.path.join(self.export_dir, name)
-        self.mesh.save(path)
+        self.exported.save(path)
         if served:
             self.download.value = downloads().link(path)
         else:

@@ -31,6 +31,7 @@ import numpy as np
 
 UNFOLD_ROUNDS = 6  # rounds of "find intersecting faces, fan their vertices" (each grows the fanned set)
 PAIR_CHUNK = 1 << 16  # candidate pairs tested at a time (temporaries stay in cache)
+SLAB_FACES = 1 << 20  # faces searched for intersecting pairs at a time (memory of the search)
 
 
 def _cells_of(
@@ -177,9 +178,36 @@ def _intersecting_pairs(
     v: np.ndarray, faces: np.ndarray, origin: np.ndarray, h: np.ndarray, changed: np.ndarray | None = None
 ) -> np.ndarray:
     """Pairs (P, 2) of faces that share no vertex and intersect; the grid (``origin``, cell ``h``)
-    only buckets the search.  With ``changed``, only pairs with a changed face are tested."""
-    pairs = _candidate_pairs(v, faces, origin, h, changed)
-    return pairs[_pairs_intersect(v, faces, pairs)]
+    only buckets the search.  With ``changed``, only pairs with a changed face are tested.
+
+    In slabs of cell layers along x holding at most ``SLAB_FACES`` faces each, so that the memory
+    of the (face, cell) entries and candidate pairs stays bounded: two intersecting faces share a
+    cell, and the slab of that cell's layer holds both (every face whose box meets its layers), so
+    each such pair is found; pairs found twice (faces spanning two slabs) are merged.
+    """
+    if len(faces) <= SLAB_FACES:
+        pairs = _candidate_pairs(v, faces, origin, h, changed)
+        return pairs[_pairs_intersect(v, faces, pairs)]
+    layer = np.floor((v[:, 0] - origin[0]) / h[0]).astype(np.int64)[faces]
+    first, last = layer.min(axis=1), layer.max(axis=1)
+    # layer boundaries such that at most SLAB_FACES faces start in each slab (at least one layer)
+    start, count = np.unique(first, return_counts=True)
+    bounds, total = [start[0]], 0
+    for value, n in zip(start, count):
+        if total and total + n > SLAB_FACES:
+            bounds.append(value)
+            total = 0
+        total += n
+    bounds.append(last.max() + 1)
+    found = []
+    for lo_layer, hi_layer in zip(bounds[:-1], bounds[1:]):
+        subset = np.flatnonzero((first < hi_layer) & (last >= lo_layer))
+        part = faces[subset]
+        pairs = _candidate_pairs(v, part, origin, h, None if changed is None else changed[subset])
+        pairs = pairs[_pairs_intersect(v, part, pairs)]
+        found.append(subset[pairs])
+    pairs = np.unique(np.concatenate(found), axis=0)
+    return pairs.reshape(-1, 2)
 
 
 def _halves(quads: np.ndarray, corner: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -28,6 +28,10 @@ Smooth patches: a vertex whose QEF has one significant direction is moved onto f
 step along grad f (when it stays in its cell), so that spheres and TPMS come out at least as
 accurate as projected marching cubes.
 
+No self-intersections: where faces still pierce each other (sheets closer than a cell, a vertex
+far from its crossings), the cells involved fall back to marching cubes' polygon, fanned from
+their mass points (:mod:`pyfrep_core.meshing.folds`).
+
 >>> from pyfrep_core import block
 >>> m = dual_contour(lambda x: block(x, vertex=(-0.5, -0.5, -0.5), dx=1, dy=1, dz=1), ((-1.0,) * 3, (1.0,) * 3), 24)
 >>> round(m.volume(), 12)   # the cube's corners and edges exactly: volume 1

@@ -27,6 +27,8 @@ array([[0, 1]])
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
 UNFOLD_ROUNDS = 6  # rounds of "find intersecting faces, fan their vertices" (each grows the fanned set)
@@ -337,4 +339,12 @@ def _without_folds(
     if len(faces) != 2 * len(quads):
         raise ValueError(f"_without_folds: expected two faces per quad, got {len(faces)} for {len(quads)} quads")
     second = (faces[: len(quads)] == quads[:, [1, 2, 3]]).all(axis=1)
-    return _unfold(quads, second, corner, crossing_points, x, mass, origin, h)
+    faces, x, left = _unfold(quads, second, corner, crossing_points, x, mass, origin, h)
+    if left:
+        warnings.warn(
+            f"polygonize: {left} pairs of faces still intersect after {UNFOLD_ROUNDS} rounds of "
+            "marching-cubes fallback (features thinner than a cell: a finer resolution separates them)",
+            RuntimeWarning,
+            stacklevel=4,
+        )
+    return faces, x, left

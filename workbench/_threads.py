@@ -63,10 +63,13 @@ class LatestWorker:
     """Compute only the newest job on a background thread; jobs superseded while busy are dropped.
 
     ``submit(job, followup=None)``: when ``followup`` is given and no newer job arrives within
-    ``settle`` seconds after ``job`` is done, ``followup`` runs (a full-resolution mesh after a
-    preview made while a slider is dragged).  ``deliver(job, result, error)`` runs on the main
-    thread; with a running loop the worker waits for it before the next job, so renders never
-    queue up behind each other.
+    ``settle`` seconds after ``job`` is delivered, ``followup`` runs (a full-resolution mesh after
+    a preview made while a slider is dragged).  ``deliver(job, result, error)`` runs on the main
+    thread; with a running loop the worker waits for it before the next job (so renders never
+    queue up behind each other, and the next job's computing does not take the CPU from drawing
+    and sending the last result).
+    :attr:`superseded` is set while a newer job waits: a followup's compute can pass it on as its
+    stop flag (its result is then dropped, never delivered).
     """
 
     def __init__(self, compute: Callable, deliver: Callable, main: MainThread, settle: float = 0.3):
@@ -75,13 +78,15 @@ class LatestWorker:
         self._pending: tuple[Any, Any] | None = None
         self._busy = False
         self._thread: threading.Thread | None = None
-        self.dropped = 0  # jobs replaced before they started (coalesced moves)
+        self.superseded = threading.Event()  # a newer job is waiting
+        self.dropped = 0  # jobs replaced before they started (coalesced moves), or stopped followups
 
     def submit(self, job: Any, followup: Any = None) -> None:
         with self._cond:
             if self._pending is not None:
                 self.dropped += 1
             self._pending = (job, followup)
+            self.superseded.set()
             if self._thread is None or not self._thread.is_alive():
                 self._thread = threading.Thread(target=self._run, name="pyfrep-remesh", daemon=True)
                 self._thread.start()
@@ -94,6 +99,7 @@ class LatestWorker:
                     self._thread = None  # idle for a minute: let the thread end
                     return None
             item, self._pending = self._pending, None
+            self.superseded.clear()
             self._busy = True
             return item
 
@@ -108,20 +114,22 @@ class LatestWorker:
     def _run(self) -> None:
         while (item := self._next()) is not None:
             job, followup = item
-            while job is not None:
-                self._one(job)
-                job = followup if followup is not None and self._settled() else None
-                followup = None
+            self._one(job)
+            if followup is not None and self._settled():
+                self._one(followup, stoppable=True)
             with self._cond:
                 self._busy = False
                 self._cond.notify_all()
 
-    def _one(self, job: Any) -> None:
+    def _one(self, job: Any, stoppable: bool = False) -> None:
         result, error = None, None
         try:
             result = self.compute(job)
         except Exception as err:  # shown in the panel's status line, never lost
             error = err
+        if stoppable and self.superseded.is_set():  # stopped, or outdated: the newer job is shown instead
+            self.dropped += 1
+            return
         done = threading.Event()
 
         def deliver() -> None:

@@ -2,8 +2,10 @@
 
 The slider's journey: slider -> ``polygonize(model(., **params))`` -> points/faces replaced
 in the view's one PolyData -> render.  Meshing runs on a background thread that only ever builds
-the newest request (moves made meanwhile are coalesced); while a slider is dragged the mesh is
-built at ``preview_resolution`` and, once it rests for ``settle`` seconds, at full resolution.
+the newest request (moves made meanwhile are coalesced).  A move is first meshed at
+``preview_resolution`` with marching cubes' own vertices (no projection onto f = 0: a quarter of
+the time), and the full-resolution mesh is built right after, while the preview is drawn; a
+newer move stops it (the next preview comes first), so dragging stays live.
 The model is evaluated through :func:`pyfrep_core.compiled.compiled` (torch.compile: one fused
 loop per chunk, 5x faster than eager) once its kernels are compiled on a background thread;
 until then, and wherever compilation fails, the eager model meshes.
@@ -145,7 +147,8 @@ class ShapePanel(widgets.VBox):
     bounds : meshing box; default the model's bounds.
     backend : 3-D view backend ("auto", "trame", "image").
     threaded : mesh on a background thread; default: when a kernel's loop runs (notebooks, Voila).
-    settle : seconds a slider must rest before the full-resolution mesh replaces the preview.
+    settle : seconds a slider must rest after a preview is built before the full-resolution mesh
+        is started (0: at once; a newer move stops it anyway).
     sparse : mesh with ``polygonize(..., sparse=True)`` (f exactly only near the surface; the
         same mesh as the dense grid on the paper's shapes, see tests/test_mesh.py).  None (the
         default): sparse while the eager model meshes, dense once the compiled one does (its
@@ -168,7 +171,7 @@ class ShapePanel(widgets.VBox):
         bounds: Any = None,
         backend: str = "auto",
         threaded: bool | None = None,
-        settle: float = 0.1,  # a key press: preview, then the full mesh ~0.1 s later
+        settle: float = 0.0,  # a key press: preview, then the full mesh at once
         colouring: str = "sensitivity",
         size: tuple[int, int] = (640, 480),
         export_dir: str | None = None,
@@ -387,7 +390,7 @@ class ShapePanel(widgets.VBox):
         if full or preview is None or preview >= res:
             self.worker.submit(job)
         else:
-            self.worker.submit({**job, "resolution": int(preview)}, followup=job)
+            self.worker.submit({**job, "resolution": int(preview), "preview": True}, followup={**job, "followup": True})
 
     def _run_inline(self, job: dict) -> tuple[Any, Exception | None]:
         try:
@@ -409,7 +412,12 @@ class ShapePanel(widgets.VBox):
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             f = functools.partial(model, **params)  # a partial: polygonize reads the model's chunk size
-            mesh = polygonize(f, job["bounds"], job["resolution"], sparse=sparse)
+            # a preview keeps marching cubes' vertices (it is replaced a moment later); a followup
+            # stops when a newer move arrives (the worker then drops it)
+            stop = self.worker.superseded if job.get("followup") else None
+            mesh = polygonize(
+                f, job["bounds"], job["resolution"], sparse=sparse, project=not job.get("preview"), stop=stop
+            )
         scalars = None
         if job["colouring"] == "sensitivity" and job["moved"] is not None and not mesh.is_empty():
             scalars = surface_velocity(model, mesh, job["moved"], params)

@@ -11,20 +11,29 @@ encoding took longer than the retries was never shown until the next move.
 the change is made to its class, once, before a view starts its server) ask again every
 ``interval`` seconds until the encoder has the new picture, for at most ``patience`` seconds.
 Each retry only looks at the encoder's output (no render: the scene has not changed since).
+A push outside a camera animation first waits for the encoder right there, up to ``wait`` s
+(a 640 x 480 JPEG takes a few ms): the picture leaves as soon as it is encoded, instead of after
+whatever the kernel does next on its main thread (a panel's status line, the next mesh's
+delivery), which the scheduled retries would have to wait for.
 """
 
 from __future__ import annotations
 
+import time
 from typing import Any
 
 __all__ = ["prompt_image_delivery"]
 
 INTERVAL_S = 0.01  # a 640 x 480 JPEG takes a few ms to encode on one core
 PATIENCE_S = 3.0
+WAIT_S = 0.1  # the longest a push waits for its JPEG before leaving it to the retries
 
 
-def prompt_image_delivery(interval: float = INTERVAL_S, patience: float = PATIENCE_S) -> bool:
-    """Make trame-vtk's image delivery publish a new frame within ``interval`` s of its encoding.
+def prompt_image_delivery(interval: float = INTERVAL_S, patience: float = PATIENCE_S, wait: float = WAIT_S) -> bool:
+    """Make trame-vtk's image delivery publish a new frame as soon as it is encoded.
+
+    A push waits up to ``wait`` s for its JPEG (polling the encoder every 2 ms); a slower one is
+    published by retries every ``interval`` s, for at most ``patience`` s.
 
     Returns False (and changes nothing) when trame-vtk is not installed or has no such protocol.
 
@@ -40,9 +49,10 @@ def prompt_image_delivery(interval: float = INTERVAL_S, patience: float = PATIEN
     cls: Any = vtkWebPublishImageDelivery
     if not hasattr(cls, "render_stale_image") or not hasattr(cls, "push_render"):
         return False
-    if getattr(cls, "_pyfrep_interval", None) == interval:
+    if getattr(cls, "_pyfrep_interval", None) == (interval, patience, wait):
         return True
     original_init = getattr(cls, "_pyfrep_original_init", cls.__init__)
+    original_push = getattr(cls, "_pyfrep_original_push", cls.push_render)
     tries = max(1, int(patience / interval))
 
     def init(self: Any, *args: Any, **kwargs: Any) -> None:
@@ -58,8 +68,21 @@ def prompt_image_delivery(interval: float = INTERVAL_S, patience: float = PATIEN
         if self.last_stale_time.get(v_id, 0) != 0 and stale_count < self.stale_count_limit:
             self.push_render(v_id, False, stale_count + 1)
 
+    def push_render(self: Any, v_id: Any, ignore_animation: bool = False, stale_count: int = 0) -> None:
+        original_push(self, v_id, ignore_animation, stale_count)
+        if self.views_in_animations:  # a camera drag: the animation's own frames follow at its rate
+            return
+        # stale: the encoder has the picture on its threads; ask again until it is out (the retry
+        # scheduled by the push then finds nothing left to do)
+        end = time.monotonic() + wait
+        while self.last_stale_time.get(v_id, 0) != 0 and time.monotonic() < end:
+            time.sleep(0.002)
+            original_push(self, v_id, ignore_animation, stale_count)
+
     cls._pyfrep_original_init = original_init
+    cls._pyfrep_original_push = original_push
     cls.__init__ = init
+    cls.push_render = push_render
     cls.render_stale_image = render_stale_image
-    cls._pyfrep_interval = interval
+    cls._pyfrep_interval = (interval, patience, wait)
     return True

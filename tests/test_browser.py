@@ -346,6 +346,36 @@ def test_the_microstructure_opens_cut_with_whole_slider_labels(page):
     page.screenshot(path=str(ARTIFACTS / "microstructure.png"))
 
 
+def test_dragging_the_surface_in_the_view_moves_the_sliders(page):
+    """The trame view sends press, moves and release to the kernel's interactor: a drag pulls the surface."""
+    page.get_by_role("tab", name="Shape").click()
+    select_model(page, "pawn")
+    page.wait_for_function("document.body.innerText.includes('head_radius = ')", timeout=240_000)
+    page.wait_for_function("document.body.innerText.includes('128³')", timeout=240_000)
+    sliders = page.locator(".widget-slider:visible .widget-readout")
+    before = [sliders.nth(i).inner_text() for i in range(sliders.count())]
+    page.get_by_role("button", name="drag the surface").click()
+    box = view_locator(page).bounding_box()
+    x, y = box["x"] + 0.5 * box["width"], box["y"] + 0.5 * box["height"]  # the pawn's body
+    page.mouse.move(x, y)
+    page.mouse.down()
+    for k in range(1, 9):
+        page.mouse.move(x + k, y + 3 * k)  # down the screen: the normal there points down and out
+        time.sleep(0.1)
+    page.mouse.up()
+    status = page.locator(".widget-html-content:visible", has_text="push-pull").first
+    deadline = time.monotonic() + 120
+    while "picked" in status.inner_text() or "click the surface" in status.inner_text():
+        assert time.monotonic() < deadline, status.inner_text()
+        time.sleep(0.5)
+    page.screenshot(path=str(ARTIFACTS / "push_pull_drag.png"))
+    text = status.inner_text()
+    assert re.search(r"[+-]\d", text) and ("passes through the target" in text or "short of the target" in text), text
+    after = [sliders.nth(i).inner_text() for i in range(sliders.count())]
+    assert after != before  # the pull and the parameters it solved for moved
+    page.get_by_role("button", name="drag the surface").click()
+
+
 def test_nothing_is_fetched_from_the_internet(page, external):
     """Last test: every request of the page (shape tab, fit, trame views) went to this machine."""
     assert "fit" in RAN  # the fit's requests are among those checked

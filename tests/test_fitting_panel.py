@@ -158,6 +158,7 @@ def test_an_uploaded_mesh_is_named_in_the_status_and_fitted(panel, tmp_path):
     assert len(p.points) == mesh.n_vertices + p.n_points.value  # vertices and area samples shown
     p.start(**POLISH, init=near(truth))
     result = p.wait()
+    assert p.param_chart.title == "parameters" and not p.param_chart.references  # no true values to draw
     assert result.residual == "geometric"  # measured data: the geometric residual under "auto"
     # marching cubes' facets cut the plate's edges: within a few % of a cell (0.064)
     assert result.params["a"] == pytest.approx(1.2, abs=0.01) and result.params["b"] == pytest.approx(0.5, abs=0.01)

@@ -391,6 +391,8 @@ class FittingPanel(widgets.VBox):
         settings = self.settings(**overrides)
         generation = self._generation
         self._clear_fit()
+        # a loaded file has no true values: no dashed lines, and the title does not promise them
+        self.param_chart.title = "parameters" + (" (dashed: true values)" if self.truth is not None else "")
         if self.truth is not None:
             references = dict(self.truth)
             if settings["pose"] and self.true_pose:

@@ -25,12 +25,15 @@ confirmed by VTK's collision filter), and peak memory
 (the child process's VmHWM less its resident size before meshing).
 
 The peer named by the issue, libfive (octree dual contouring in C++), runs when ``LIBFIVE_LIB``
-names its ``libfive.so`` (or the build folder): a row ``lf`` under each case up to 512^3 with the
-same figures, from ``libfive_tree_render_mesh`` through ctypes on the same R-function field
-negated (libfive's solid is f <= 0), resolution (n - 1) / side voxels per unit, so its octree has
-n cells along the shortest side where our grid has n - 1 (n = 128, 256); its C API meshes
-with 8 worker threads, here pinned to at most 2 CPUs (``LIBFIVE_THREADS=1``: one thread).
-Without it, a line says the peer was not run.  libfive is not on PyPI as a library; to build
+names its ``libfive.so`` (or the build folder): rows under each case up to 512^3 with the same
+figures, from libfive's mesher through ctypes: ``lf`` on the same R-function field negated
+(libfive's solid is f <= 0), ``lf-native`` (Fig. 1 part, gyroid) on the same solid written as
+libfive's users do (max, Euclidean sphere and cylinders, max-norm cube: tighter intervals, fewer
+operations, several times faster there); resolution (n - 1) / side voxels per unit, so its octree
+has n cells along the shortest side where our grid has n - 1 (n = 128, 256); 2 worker threads
+(``LIBFIVE_THREADS``) pinned to at most 2 CPUs, through the exported C++ entry that takes
+libfive's settings (the C API's fixed 8 threads spin when idle); time: median, best and CPU
+seconds (less sensitive to other jobs on the machine).  Without it, a line says the peer was not run.  libfive is not on PyPI as a library; to build
 it in a temporary folder (Debian)::
 
     apt-get install -y cmake g++ libeigen3-dev libboost-dev libpng-dev pkg-config
@@ -282,6 +285,30 @@ def _libfive_library():
         getattr(lib, name).argtypes = args
         getattr(lib, name).restype = result
     lib.Region, lib.Interval, lib.path = Region, Interval, path
+    # The C API meshes with 8 worker threads (or 1): idle ones spin, so 8 on 2 busy cores measure the
+    # contention.  libfive_tree_render_mesh_ (C++ linkage, exported) takes the settings themselves: a
+    # BRepSettings laid out as libfive 2.x declares it (checked with offsetof: 56 bytes), or None.
+    lib.with_settings = getattr(
+        lib, "_Z25libfive_tree_render_mesh_PKN7libfive8TreeDataE15libfive_region3RKNS_12BRepSettingsE", None
+    )
+    if lib.with_settings is not None:
+
+        class Settings(ctypes.Structure):
+            _fields_ = [
+                ("min_feature", ctypes.c_double),
+                ("max_err", ctypes.c_double),  # 1e-8, libfive's default: merge only near-linear cells
+                ("workers", ctypes.c_uint),
+                ("alg", ctypes.c_int),  # 0: dual contouring
+                ("free_thread_handler", ctypes.c_void_p),
+                ("progress_handler", ctypes.c_void_p),
+                ("vol", ctypes.c_void_p),
+                ("cancel", ctypes.c_bool),
+            ]
+
+        assert ctypes.sizeof(Settings) == 56
+        lib.with_settings.argtypes = [tree, Region, ctypes.POINTER(Settings)]
+        lib.with_settings.restype = ctypes.POINTER(Mesh)
+        lib.Settings = Settings
     return lib
 
 
@@ -389,12 +416,43 @@ def _five_microstructure(x, y, z, scale1=9.0, scale2=3.0, freq1=0.75, freq2=0.85
     return _r_and(_r_or(skin, _r_and(sp, grid)), y)
 
 
-LIBFIVE_MODELS = {"fig1": _five_fig1, "gyroid": _five_gyroid_block, "microstructure": _five_microstructure}
+# The same solids as libfive's users write them (its own ground): max for intersection, Euclidean
+# distances for sphere and cylinders, the max-norm for the cube, already f <= 0 inside.
+def _five_max(*fs):
+    out = fs[0]
+    for f in fs[1:]:
+        out = out._op("max", f)
+    return out
 
 
-def _libfive_child(case: str, n: int, runs: int) -> None:
+def _five_cube(x, y, z, half: float):
+    return _five_max(x._op("abs"), y._op("abs"), z._op("abs")) - half
+
+
+def _five_fig1_native(x, y, z, r: float = 0.5):
+    ball = (x.square() + y.square() + z.square()).sqrt() - 1.0
+    holes = ((u.square() + v.square()).sqrt() - r for u, v in ((y, z), (x, z), (x, y)))
+    return _five_max(ball, _five_cube(x, y, z, 0.75), *(-h for h in holes))
+
+
+def _five_gyroid_native(x, y, z):
+    X, Y, Z = (2.0 * np.pi * t for t in (x, y, z))
+    return _five_max(X.sin() * Y.cos() + Y.sin() * Z.cos() + Z.sin() * X.cos(), _five_cube(x, y, z, 1.0))
+
+
+# case -> variant -> tree builder; "field" trees are negated when meshed, "native" ones are not
+LIBFIVE_MODELS = {
+    "fig1": {"field": _five_fig1, "native": _five_fig1_native},
+    "gyroid": {"field": _five_gyroid_block, "native": _five_gyroid_native},
+    "microstructure": {"field": _five_microstructure},  # the graded blend has no min/max form
+}
+LIBFIVE_THREADS = int(os.environ.get("LIBFIVE_THREADS", "2"))
+
+
+def _libfive_child(case: str, n: int, runs: int, variant: str = "field") -> None:
     """libfive's mesh of a case at the voxel size of an n^3 grid: seconds (median and best), triangles,
-    volume, flagged faces, MiB; on at most 2 CPUs (its C API meshes with 8 worker threads)."""
+    volume, flagged faces, MiB, CPU seconds (median); ``LIBFIVE_THREADS`` worker threads on at most 2 CPUs."""
+    import ctypes
     import json
 
     from pyfrep_core.meshing import Mesh
@@ -411,14 +469,20 @@ def _libfive_child(case: str, n: int, runs: int) -> None:
     # libfive halves every side of the region until the shortest is below 1 / resolution: with
     # (n - 1) / side voxels per unit, 2^ceil(log2(n - 1)) cells along it (n = 128, 256: n cells, ours n - 1)
     resolution = (n - 1) / float((hi - lo).min())
-    shape = -LIBFIVE_MODELS[case](
+    shape = LIBFIVE_MODELS[case][variant](
         *(_Five(lib.libfive_tree_x()), _Five(lib.libfive_tree_y()), _Five(lib.libfive_tree_z()))
     )
-    render = (
-        lib.libfive_tree_render_mesh
-        if os.environ.get("LIBFIVE_THREADS", "") != "1"
-        else lib.libfive_tree_render_mesh_st
-    )
+    if variant == "field":
+        shape = -shape
+    threads = LIBFIVE_THREADS
+    if lib.with_settings is not None:
+        settings = lib.Settings(1.0 / resolution, 1e-8, threads, 0, None, None, None, False)
+
+        def render(tree, region, resolution):
+            return lib.with_settings(tree, region, ctypes.byref(settings))
+
+    else:
+        render = lib.libfive_tree_render_mesh if threads != 1 else lib.libfive_tree_render_mesh_st
 
     def mesh_once():
         out = render(shape.ptr, region, resolution)
@@ -432,18 +496,20 @@ def _libfive_child(case: str, n: int, runs: int) -> None:
 
     before = _resident_kib("VmRSS")
     out = mesh_once()  # warm-up
-    times = []
+    times, cpu = [], []
     for _ in range(runs):
-        t0 = time.perf_counter()
+        c0, t0 = time.process_time(), time.perf_counter()
         out = mesh_once()
         times.append(time.perf_counter() - t0)
+        cpu.append(time.process_time() - c0)  # all threads: idle workers spin, so this counts them too
     peak = _resident_kib("VmHWM") - before
     mesh = Mesh(*out)
     sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "tests"))
     from test_octree_dc import self_intersecting_pairs
 
     flagged = len(self_intersecting_pairs(mesh))
-    print(json.dumps([statistics.median(times), min(times), mesh.n_faces, mesh.volume(), flagged, peak / 1024]))
+    figures = [statistics.median(times), min(times), mesh.n_faces, mesh.volume(), flagged, peak / 1024]
+    print(json.dumps([*figures, statistics.median(cpu)]))
 
 
 def libfive_note() -> bool:
@@ -459,29 +525,41 @@ def libfive_note() -> bool:
             "to get its figures in the same run)"
         )
         return False
-    threads = "1 thread" if os.environ.get("LIBFIVE_THREADS", "") == "1" else "its 8 worker threads on at most 2 CPUs"
-    print(f"  libfive: {lib.path}, libfive_tree_render_mesh ({threads}), the same R-function fields negated")
+    if lib.with_settings is not None:
+        threads = f"{LIBFIVE_THREADS} worker thread(s)"
+    else:
+        threads = "1 thread" if LIBFIVE_THREADS == 1 else "the C API's 8 worker threads"
+    print(
+        f"  libfive: {lib.path}, libfive_tree_render_mesh ({threads} on at most 2 CPUs), "
+        "the same R-function fields negated"
+    )
     return True
 
 
 def libfive_row(case: str, n: int, runs: int, ours: dict[str, float]) -> str:
-    """libfive's line for a case, with our seconds over libfive's for each of our methods measured."""
+    """libfive's lines for a case (``lf``: our field negated, ``lf-native``: min/max and distances where
+    written), with our median seconds over libfive's median for each of our methods measured."""
     import json
     import subprocess
 
-    out = subprocess.run(
-        [sys.executable, __file__, "libfive-child", case, str(n), str(runs)], capture_output=True, text=True
-    )
-    if out.returncode:
-        return f"libfive failed: {out.stderr.strip().splitlines()[-1] if out.stderr.strip() else out.returncode}"
-    seconds, best, faces, volume, flagged, mib = json.loads(out.stdout.strip().splitlines()[-1])
-    exact = CASES[case][2]
-    err = f"volume error {volume - exact:+.1e}" if exact is not None else f"volume {volume:.4f}"
-    ratios = ", ".join(f"{m} / libfive = {s / seconds:.2f}x" for m, s in ours.items())
-    return (
-        f"lf {seconds:7.3f} s {faces:9d} triangles {err} self-intersecting pairs {flagged} {mib:6.0f} MiB"
-        f"  (best {best:.3f} s; {ratios})"
-    )
+    lines = []
+    for variant in LIBFIVE_MODELS[case]:
+        label = "lf" if variant == "field" else f"lf-{variant}"
+        command = [sys.executable, __file__, "libfive-child", case, str(n), str(runs), variant]
+        out = subprocess.run(command, capture_output=True, text=True)
+        if out.returncode:
+            why = out.stderr.strip().splitlines()[-1] if out.stderr.strip() else f"exit status {out.returncode}"
+            lines.append(f"{label} failed: {why}")
+            continue
+        seconds, best, faces, volume, flagged, mib, cpu = json.loads(out.stdout.strip().splitlines()[-1])
+        exact = CASES[case][2]
+        err = f"volume error {volume - exact:+.1e}" if exact is not None else f"volume {volume:.4f}"
+        ratios = ", ".join(f"{m} / {label} = {s / seconds:.2f}x" for m, s in ours.items())
+        lines.append(
+            f"{label} {seconds:7.3f} s {faces:9d} triangles {err} self-intersecting pairs {flagged} {mib:6.0f} MiB"
+            f"  (best {best:.3f} s, CPU {cpu:.3f} s; {ratios})"
+        )
+    return "\n                         ".join(lines)
 
 
 def dual_contouring_table(runs: int) -> None:
@@ -520,7 +598,7 @@ if __name__ == "__main__":
     if len(sys.argv) > 1 and sys.argv[1] == "child":
         _child(sys.argv[2], sys.argv[3], int(sys.argv[4]), int(sys.argv[5]))
     elif len(sys.argv) > 1 and sys.argv[1] == "libfive-child":
-        _libfive_child(sys.argv[2], int(sys.argv[3]), int(sys.argv[4]))
+        _libfive_child(sys.argv[2], int(sys.argv[3]), int(sys.argv[4]), *sys.argv[5:])
     elif len(sys.argv) > 1 and sys.argv[1] == "dc":
         dual_contouring_table(int(sys.argv[2]) if len(sys.argv) > 2 else (3 if QUICK else 5))
     else:

@@ -33,8 +33,8 @@ operations, several times faster there); resolution (n - 1) / side voxels per un
 has n cells along the shortest side where our grid has n - 1 (n = 128, 256); 2 worker threads
 (``LIBFIVE_THREADS``) pinned to at most 2 CPUs, through the exported C++ entry that takes
 libfive's settings (the C API's fixed 8 threads spin when idle); time: median, best and CPU
-seconds (less sensitive to other jobs on the machine).  Without it, a line says the peer was not run.  libfive is not on PyPI as a library; to build
-it in a temporary folder (Debian)::
+seconds (less sensitive to other jobs on the machine).  Without it, a line says the peer was
+not run.  libfive is not on PyPI as a library; to build it in a temporary folder (Debian)::
 
     apt-get install -y cmake g++ libeigen3-dev libboost-dev libpng-dev pkg-config
     git clone https://github.com/libfive/libfive /tmp/libfive_src

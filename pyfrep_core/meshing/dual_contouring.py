@@ -414,6 +414,8 @@ def _contour(
     del direction, outward
     smooth_gradient[(x == mass).all(axis=1)] = np.nan  # sent back to its mass point: not smooth-projected
     x = _unbias(f, x, faces, smooth_gradient, v.cell, lo, hi, spacing, device)
+    del smooth_gradient
+    v = v._replace(gradient=None, cell=None)  # not needed any more: memory for what follows
     # where quads pierce each other, the marching-cubes fans of the cells involved (adds crossings)
     positive = v.node.astype(np.int64)  # the end of each quad's edge with f > 0 (pairs crossings on a face)
     positive[np.arange(len(quads)), v.axis] += ~v.inside_start

@@ -33,7 +33,7 @@ import numpy as np
 
 UNFOLD_ROUNDS = 6  # rounds of "find intersecting faces, fan their vertices" (each grows the fanned set)
 PAIR_CHUNK = 1 << 16  # candidate pairs tested at a time (temporaries stay in cache)
-SLAB_FACES = 1 << 20  # faces searched for intersecting pairs at a time (memory of the search)
+SLAB_FACES = 1 << 18  # faces searched for intersecting pairs at a time (memory of the search)
 
 
 def _cells_of(
@@ -182,7 +182,7 @@ def _intersecting_pairs(
     """Pairs (P, 2) of faces that share no vertex and intersect; the grid (``origin``, cell ``h``)
     only buckets the search.  With ``changed``, only pairs with a changed face are tested.
 
-    In slabs of cell layers along x holding at most ``SLAB_FACES`` faces each, so that the memory
+    In slabs of cell layers along x holding at most ``SLAB_FACES`` faces each (and their vertices), so that the memory
     of the (face, cell) entries and candidate pairs stays bounded: two intersecting faces share a
     cell, and the slab of that cell's layer holds both (every face whose box meets its layers), so
     each such pair is found; pairs found twice (faces spanning two slabs) are merged.
@@ -204,9 +204,10 @@ def _intersecting_pairs(
     found = []
     for lo_layer, hi_layer in zip(bounds[:-1], bounds[1:]):
         subset = np.flatnonzero((first < hi_layer) & (last >= lo_layer))
-        part = faces[subset]
-        pairs = _candidate_pairs(v, part, origin, h, None if changed is None else changed[subset])
-        pairs = pairs[_pairs_intersect(v, part, pairs)]
+        used, part = np.unique(faces[subset], return_inverse=True)  # the slab's vertices only
+        part, near = part.reshape(-1, 3), v[used]
+        pairs = _candidate_pairs(near, part, origin, h, None if changed is None else changed[subset])
+        pairs = pairs[_pairs_intersect(near, part, pairs)]
         found.append(subset[pairs])
     pairs = np.unique(np.concatenate(found), axis=0)
     return pairs.reshape(-1, 2)

@@ -530,8 +530,8 @@ def libfive_note() -> bool:
     else:
         threads = "1 thread" if LIBFIVE_THREADS == 1 else "the C API's 8 worker threads"
     print(
-        f"  libfive: {lib.path}, libfive_tree_render_mesh ({threads} on at most 2 CPUs), "
-        "the same R-function fields negated"
+        f"  libfive: {lib.path}, libfive_tree_render_mesh ({threads} on at most 2 CPUs); lf: the same "
+        "R-function fields negated, lf-native: max and distances"
     )
     return True
 

@@ -188,7 +188,7 @@ class ModelPanel(widgets.VBox):
         self.template = widgets.Dropdown(
             options=list(TEMPLATES), value=template, description="template", layout=widgets.Layout(width="360px")
         )
-        self.editor = CodeEditor(TEMPLATES[template], width="540px")
+        self.editor = CodeEditor(TEMPLATES[template], width="700px")  # the templates' 86 columns
         self.run_button = widgets.Button(
             description="Run", button_style="success", icon="play", tooltip="build the model and open it in every tab"
         )
@@ -199,13 +199,13 @@ class ModelPanel(widgets.VBox):
         self.run_button.on_click(lambda _: self.run())
         left = widgets.VBox(
             [
-                widgets.HTML(HELP, layout=widgets.Layout(width="590px")),
+                widgets.HTML(HELP, layout=widgets.Layout(width="750px")),
                 widgets.HBox([self.template, self.run_button]),
                 self.editor,
                 self.status,
                 self.error,
             ],
-            layout=widgets.Layout(width="600px", flex="0 0 auto", margin="0 16px 0 0"),
+            layout=widgets.Layout(width="760px", flex="0 0 auto", margin="0 16px 0 0"),
         )
         super().__init__([widgets.HBox([left, self.preview_box])])
         self.add_class("pyfrep-model-panel")

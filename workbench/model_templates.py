@@ -14,8 +14,12 @@ import torch
 from pyfrep_core import *
 
 
-# The paper's Fig. 1 part: a sphere cut by a cube, drilled by three cylinders of radius r.
-@model(bounds=((-1.1,) * 3, (1.1,) * 3), r=Param(0.5, 0.2, 0.8, label="cylinder radius"))
+# The paper's Fig. 1 part: a sphere cut by a cube, drilled by three cylinders of
+# radius r.
+@model(
+    bounds=((-1.1,) * 3, (1.1,) * 3),
+    r=Param(0.5, 0.2, 0.8, label="cylinder radius"),
+)
 def my_part(x, r):
     sp1 = sphere(x, center=(0, 0, 0), r=1)
     b1 = block(x, vertex=(-0.75, -0.75, -0.75), dx=1.5, dy=1.5, dz=1.5)
@@ -33,7 +37,8 @@ import torch
 from pyfrep_core import *
 
 
-# The chess pawn of Figs. 5-6: polynomial pieces joined by R-functions, standing on z = -1.
+# The chess pawn of Figs. 5-6: polynomial pieces joined by R-functions, standing
+# on z = -1.
 @model(
     bounds=((-1.0, -1.0, -1.2), (1.0, 1.0, 1.3)),
     head_radius=Param(0.3, 0.2, 0.4, label="head radius"),
@@ -44,12 +49,17 @@ from pyfrep_core import *
 def my_pawn(x, head_radius, neck_radius, base_radius, collar_radius):
     z = x[:, 2]
     head = sphere(x, center=(0.0, 0.0, 0.72), r=head_radius)
-    collar = ellipsoid(x, center=(0.0, 0.0, 0.45), a=collar_radius, b=collar_radius, c=0.07)
-    # the body: a hyperboloid of one sheet, narrowest (neck_radius) under the collar, cut by a slab
+    c = collar_radius
+    collar = ellipsoid(x, center=(0.0, 0.0, 0.45), a=c, b=c, c=0.07)
+    # the body: a hyperboloid of one sheet, narrowest (neck_radius) under the
+    # collar, cut by a slab
     waist = neck_radius**2 + (0.33 * (z - 0.45)) ** 2 - x[:, 0] ** 2 - x[:, 1] ** 2
     body = intersection(waist, (z + 0.7) * (0.45 - z))
-    ring = ellipsoid(x, center=(0.0, 0.0, -0.68), a=0.8 * base_radius, b=0.8 * base_radius, c=0.08)
-    base = intersection(ellipsoid(x, center=(0.0, 0.0, -0.88), a=base_radius, b=base_radius, c=0.3), z + 1.0)
+    r = 0.8 * base_radius
+    ring = ellipsoid(x, center=(0.0, 0.0, -0.68), a=r, b=r, c=0.08)
+    b = base_radius
+    foot = ellipsoid(x, center=(0.0, 0.0, -0.88), a=b, b=b, c=0.3)
+    base = intersection(foot, z + 1.0)
     return union(union(union(union(base, ring), body), collar), head)
 """
 
@@ -66,7 +76,8 @@ from pyfrep_core import *
     radius=Param(1.0, 0.6, 1.05, label="ball radius"),
 )
 def my_gyroid_ball(x, cells, wall, radius):
-    g = gyroid(x, alpha=cells, beta=cells, gamma=cells)  # sin X cos Y + ..., X = 2 pi cells x
+    # sin X cos Y + ..., X = 2 pi cells x
+    g = gyroid(x, alpha=cells, beta=cells, gamma=cells)
     sheet = wall - torch.abs(g)  # >= 0 within the wall around the gyroid surface
     return intersection(sphere(x, r=radius), sheet)
 """

@@ -226,6 +226,9 @@ def test_preview_while_dragging_then_full_resolution():
         p.wait()
         assert p.last_job["resolution"] == 48 and p.last_job["params"]["r"] == pytest.approx(0.4)
         assert p.remesh_count >= 4  # preview + full, twice
+        # the settled full-resolution mesh is dual contouring's (the part has interval bounds)
+        dc = polygonize(functools.partial(fig1_part, r=0.4), p.last_job["bounds"], 48, method="dc", progress=False)
+        np.testing.assert_array_equal(p.mesh.faces, dc.faces)
     finally:
         p.view.close()
 

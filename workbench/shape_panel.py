@@ -5,7 +5,8 @@ in the view's one PolyData -> render.  Meshing runs on a background thread that 
 the newest request (moves made meanwhile are coalesced).  A move is first meshed at
 ``preview_resolution`` with marching cubes' own vertices (no projection onto f = 0: a quarter of
 the time), and the full-resolution mesh is built right after, while the preview is drawn; a
-newer move stops it (the next preview comes first), so dragging stays live.
+newer move stops it (the next preview comes first), so dragging stays live.  That settled mesh,
+and the exported file, are dual contouring (sharp edges kept) where the model has interval bounds.
 The model is evaluated through :func:`pyfrep_core.compiled.compiled` (torch.compile: one fused
 loop per chunk, 5x faster than eager) once its kernels are compiled on a background thread;
 until then, and wherever compilation fails, the eager model meshes.
@@ -31,6 +32,7 @@ import torch
 from pyfrep_core import Mesh, Model, polygonize
 from pyfrep_core.compiled import CompiledModel, warm_up
 from pyfrep_core.compiled import compiled as compile_model
+from pyfrep_core.interval import supports
 from pyfrep_core.model import check_bounds
 from pyfrep_core.sensitivity import normal_velocity, param_derivative, velocity
 
@@ -411,12 +413,22 @@ class ShapePanel(widgets.VBox):
         sparse = (not fused) if self.sparse is None else self.sparse
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
-            f = functools.partial(model, **params)  # a partial: polygonize reads the model's chunk size
             # a preview keeps marching cubes' vertices (it is replaced a moment later); a followup
-            # stops when a newer move arrives (the worker then drops it)
+            # (the settled full-resolution mesh) is dual contouring of the eager model where it has
+            # interval bounds (sharp edges kept; torch.compile cannot trace interval arithmetic), and
+            # stops when a newer move arrives (the worker then drops it); moves meshed inline stay on
+            # marching cubes, the fastest path
+            dc = bool(job.get("followup")) and supports(job["model"])
+            f = functools.partial(job["model"] if dc else model, **params)  # polygonize reads the chunk size
             stop = self.worker.superseded if job.get("followup") else None
             mesh = polygonize(
-                f, job["bounds"], job["resolution"], sparse=sparse, project=not job.get("preview"), stop=stop
+                f,
+                job["bounds"],
+                job["resolution"],
+                sparse=sparse,
+                project=not job.get("preview"),
+                stop=stop,
+                method="dc" if dc else "mc",
             )
         scalars = None
         if job["colouring"] == "sensitivity" and job["moved"] is not None and not mesh.is_empty():

@@ -420,6 +420,7 @@ def _contour(
     positive = v.node.astype(np.int64)  # the end of each quad's edge with f > 0 (pairs crossings on a face)
     positive[np.arange(len(quads)), v.axis] += ~v.inside_start
     corner = (positive[:, 0] * (ncell[1] + 1) + positive[:, 1]) * (ncell[2] + 1) + positive[:, 2]
+    del positive
     faces, x, _ = _without_folds(faces, quads, corner, v.points, x, mass, lo, spacing)
     used = np.unique(faces)
     index = np.full(len(x), -1, dtype=np.int64)

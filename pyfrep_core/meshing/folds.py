@@ -301,7 +301,9 @@ def _unfold(
     edge_key = np.minimum(a, b) * n + np.maximum(a, b)
     _, inverse, count = np.unique(edge_key, return_inverse=True, return_counts=True)
     crowded = count[inverse] > 2
+    del edge_key, inverse, count  # 4 Q entries each, not needed through the rounds
     fanned[a[crowded]] = fanned[b[crowded]] = True
+    del crowded
     verts = np.concatenate([x, crossing_points])
     verts[fanned[:n].nonzero()[0]] = mass[fanned]
     faces = _hybrid(quads, second, crossing, fanned, halves)

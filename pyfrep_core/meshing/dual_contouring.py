@@ -32,6 +32,11 @@ No self-intersections: where faces still pierce each other (sheets closer than a
 far from its crossings), the cells involved fall back to marching cubes' polygon, fanned from
 their mass points (:mod:`pyfrep_core.meshing.folds`).
 
+Memory: the octree's leaf blocks are sampled and contoured in slabs along x of at most
+``SLAB_BLOCKS`` blocks (samples, Hermite data and QEFs of one slab at a time; the slab's last
+cell layer is carried to the next one's quads); what grows with the surface is the mesh itself
+and the whole-mesh passes (diagonals, unbiasing, folds), which run in chunks.
+
 >>> from pyfrep_core import block
 >>> m = dual_contour(lambda x: block(x, vertex=(-0.5, -0.5, -0.5), dx=1, dy=1, dz=1), ((-1.0,) * 3, (1.0,) * 3), 24)
 >>> round(m.volume(), 12)   # the cube's corners and edges exactly: volume 1

@@ -46,25 +46,35 @@ def _cells_of(
     vertex is the only one in its cell.  A point common to two faces lies in one half-open cell,
     which both faces' boxes meet (floor is monotone), so two intersecting faces share an entry.
     """
-    corner = cell[faces[subset]]
-    first = corner.min(axis=1)
-    span = corner.max(axis=1) - first + 1
-    count = span.prod(axis=1)
-    face = np.repeat(subset, count)
-    # the k-th cell of a face's box, in x-major order
-    k = np.arange(len(face)) - np.repeat(np.cumsum(count) - count, count)
-    sy, sz = np.repeat(span[:, 1], count), np.repeat(span[:, 2], count)
-    c = np.repeat(first, count, axis=0)
-    c[:, 0] += k // (sy * sz)
-    c[:, 1] += k // sz % sy
-    c[:, 2] += k % sz
-    key = (c[:, 0] * dims[1] + c[:, 1]) * dims[2] + c[:, 2]
+    f = faces[subset]
+    corner = [cell[f[:, k]] for k in range(3)]
+    first = np.minimum(np.minimum(corner[0], corner[1]), corner[2])
+    span = np.maximum(np.maximum(corner[0], corner[1]), corner[2]) - first + 1
     vkey = (cell[:, 0] * dims[1] + cell[:, 1]) * dims[2] + cell[:, 2]
-    own = np.zeros(len(face), dtype=bool)
-    for k in range(3):
-        vertex = faces[face, k]
-        own |= (vkey[vertex] == key) & alone[vertex]
-    return face, key, own
+    fkey = [vkey[f[:, k]] for k in range(3)]
+    falone = [alone[f[:, k]] for k in range(3)]
+    base = (first[:, 0] * dims[1] + first[:, 1]) * dims[2] + first[:, 2]
+    # boxes of at most 2 cells per axis (nearly all): one pass per corner offset of a 2 x 2 x 2 box
+    wide = (span[:, 0] > 1) | (span[:, 1] > 1) << 1 | (span[:, 2] > 1) << 2
+    small = np.flatnonzero((span <= 2).all(axis=1))
+    rows, keys = [], []
+    for need in range(8):
+        r = small[(wide[small] & need) == need]
+        rows.append(r)
+        keys.append(base[r] + ((need & 1) * dims[1] + (need >> 1 & 1)) * dims[2] + (need >> 2 & 1))
+    # the others: every cell of the box
+    big = np.flatnonzero((span > 2).any(axis=1))
+    count = span[big].prod(axis=1)
+    r = np.repeat(big, count)
+    k = np.arange(len(r)) - np.repeat(np.cumsum(count) - count, count)
+    sy, sz = span[r, 1], span[r, 2]
+    rows.append(r)
+    keys.append(base[r] + ((k // (sy * sz)) * dims[1] + k // sz % sy) * dims[2] + k % sz)
+    local, key = np.concatenate(rows), np.concatenate(keys)
+    own = np.zeros(len(key), dtype=bool)
+    for j in range(3):
+        own |= (fkey[j][local] == key) & falone[j][local]
+    return subset[local], key, own
 
 
 def _candidate_pairs(

@@ -156,6 +156,30 @@ def test_lattices_have_no_self_intersections_and_stay_closed_manifolds(shape, mo
         assert (edge_table(plain.faces)[1] > 2).any()  # and edges in four faces
 
 
+def test_marching_cubes_fans_everywhere_stay_closed_manifold_and_cell_local(monkeypatch):
+    # every vertex sent to the fallback: each cell's marching-cubes polygon fanned from its mass point
+    from pyfrep_core.meshing import folds
+
+    real, calls = folds._intersecting_pairs, []
+
+    def everything_first(v, faces, origin, h, changed=None):
+        if calls:
+            return real(v, faces, origin, h, changed)
+        calls.append(len(faces))
+        return np.repeat(np.arange(len(faces))[:, None], 2, axis=1)  # "every face intersects"
+
+    monkeypatch.setattr(folds, "_intersecting_pairs", everything_first)
+    n = 32
+    m = polygonize(fig1_part, BOX, n, method="dc", progress=False)
+    assert calls and m.n_faces == 2 * calls[0]  # each quad (two triangles) became four
+    assert_closed_manifold(m)
+    assert len(self_intersecting_pairs(m)) == 0
+    # every triangle lies in one grid cell (closed): a fan of that cell's polygon
+    h = 2.2 / (n - 1)
+    corners = (m.vertices[m.faces] + 1.1) / h
+    assert (np.floor(corners.max(axis=1) - 1e-9) == np.floor(corners.min(axis=1) + 1e-9)).all()
+
+
 def test_the_self_intersection_check_finds_an_intersection():
     # two overlapping balls in one mesh: the check must report pairs
     m = polygonize(lambda x: sphere(x, r=0.8), BOX, 24, method="dc")

@@ -18,7 +18,10 @@ HELP: dict[str, str] = {
         "re-meshed as you move a parameter p (Fig. 2: the cylinder radius r at 0.35, 0.5, 0.65). "
         "Colour: the <i>normal velocity</i> v = &minus;(&part;f/&part;p)/|&nabla;f|, how fast each surface point "
         "moves along its normal per unit of p (red: into the solid, blue: outward, white: not at all), from the "
-        "automatic derivative of f with respect to p (section 4). <i>section</i> cuts the view with a plane."
+        "automatic derivative of f with respect to p (section 4). <i>section</i> cuts the view with a plane. "
+        "<i>push-pull</i>: click a point of the surface and type or drag how far it moves along its normal (or "
+        "turn on <i>drag the surface</i> and drag the point itself); the parameters that move it there are solved "
+        "for with the same normal velocities, least squares within their ranges."
     ),
     "Curvature": (
         "Curvatures of the surface f = 0 at the mesh vertices, from the automatic first and second derivatives "

@@ -22,7 +22,7 @@ from __future__ import annotations
 import time
 from typing import Any
 
-__all__ = ["prompt_image_delivery"]
+__all__ = ["prompt_image_delivery", "remote_geometry_on_demand"]
 
 INTERVAL_S = 0.01  # a 640 x 480 JPEG takes a few ms to encode on one core
 PATIENCE_S = 3.0
@@ -85,4 +85,53 @@ def prompt_image_delivery(interval: float = INTERVAL_S, patience: float = PATIEN
     cls.push_render = push_render
     cls.render_stale_image = render_stale_image
     cls._pyfrep_interval = (interval, patience, wait)
+    return True
+
+
+def remote_geometry_on_demand() -> bool:
+    """While pyvista's trame view renders on the server, send it pictures only, not the scene too.
+
+    pyvista's view can switch to rendering in the browser (vtk.js), and to stay ready for that
+    trame-vtk's ``VtkRemoteLocalView.update`` serializes the whole scene and sends it along with
+    every picture: about 1.7 MB for a 100k-triangle surface, built on the kernel's main thread
+    and parsed in the page before the next picture can be shown, for a view nobody sees.  After
+    this patch an update in server rendering sends the picture and the scene waits; it is sent
+    when the view is switched to browser rendering.  Returns False (and changes nothing) when
+    trame-pyvista is not installed or has no such view.
+
+    Examples
+    --------
+    >>> remote_geometry_on_demand() in (True, False)
+    True
+    """
+    try:
+        from trame_pyvista.widgets import PyVistaRemoteLocalView
+    except ImportError:
+        return False
+    cls: Any = PyVistaRemoteLocalView
+    if getattr(cls, "_pyfrep_on_demand", False):
+        return True
+    if not hasattr(cls, "update") or not hasattr(cls, "update_image"):
+        return False
+    original_update = cls.update
+
+    def update(self: Any, reset_camera: bool = False, **kwargs: Any) -> None:
+        plotter = self.plotter
+        key = f"{plotter._id_name}_use_server_rendering" if plotter is not None else None
+        if key is None or self.server.state[key] is not True:  # browser rendering (or unknown): as before
+            original_update(self, reset_camera=reset_camera, **kwargs)
+            return
+        if getattr(self, "_VtkRemoteLocalView__rendering", True):
+            self.update_image(reset_camera)
+        if not getattr(self, "_pyfrep_listening", False):
+            self._pyfrep_listening = True
+
+            @self.server.state.change(key)
+            def _switched(**state: Any) -> None:
+                if state.get(key) is False:  # now rendered in the browser: it needs the scene
+                    original_update(self)
+                    self.push_camera()
+
+    cls.update = update
+    cls._pyfrep_on_demand = True
     return True

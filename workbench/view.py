@@ -35,7 +35,7 @@ import pyvista as pv  # noqa: E402
 from vtkmodules.vtkCommonDataModel import vtkPlane  # noqa: E402
 
 from .colours import UNDEFINED_COLOUR  # noqa: E402
-from .trame_delivery import prompt_image_delivery  # noqa: E402
+from .trame_delivery import prompt_image_delivery, remote_geometry_on_demand  # noqa: E402
 
 __all__ = ["LATTICES", "MeshView", "resolve_backend", "shows_inside"]
 
@@ -161,6 +161,7 @@ class MeshView:
                 import trame_pyvista  # noqa: F401
 
                 prompt_image_delivery()  # frames reach the browser when encoded, not 0.5 s later
+                remote_geometry_on_demand()  # pictures only: the scene goes to the browser when it renders
                 # a first white frame: the viewer's first image is otherwise whatever the fresh
                 # framebuffer holds (a black and white smear)
                 self.plotter.render_window.Render()

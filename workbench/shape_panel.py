@@ -283,7 +283,8 @@ class ShapePanel(widgets.VBox):
             slider.observe(lambda change, name=name: self._moved(name), names="value")
         self.slider_box.children = tuple(self.sliders.values())
         doc = (model.__doc__ or "").strip().split("\n")[0].replace("``", "")
-        self.title.value = f"<b>{html.escape(model.__name__)}</b> <small>{html.escape(doc)}</small>"
+        title = f"<b>{html.escape(model.__name__)}</b>"
+        self.title.value = f"{title} <span style='font-size: 13px'>{html.escape(doc)}</span>"
 
     def set_model(self, model: Model, bounds: Any = None) -> None:
         """Show another model in the same view (new sliders, its bounds, camera reset)."""
@@ -291,9 +292,10 @@ class ShapePanel(widgets.VBox):
             raise ValueError(f"the shape panel needs a 3-D Model, got {model!r}")
         self.model = model
         self.last_moved = model.names[0] if model.names else None
+        # before the sliders: once they show, the page shows this model's section state too
+        self.view.set_section(on=shows_inside(model), render=False)  # a lattice opens, a solid closes
         self._make_sliders(model)
         self._bounds_value = check_bounds(bounds if bounds is not None else model.bounds, 3)
-        self.view.set_section(on=shows_inside(model), render=False)  # a lattice opens, a solid closes
         self.download.value = ""  # the last export was of the other model
         self._quiet = True
         try:

@@ -369,6 +369,9 @@ def _tangent_hessian(f: Callable, x: torch.Tensor, create_graph: bool) -> tuple[
         gn = g if create_graph else g.detach()
         norm = torch.linalg.vector_norm(gn, dim=-1, keepdim=True)
         frame = tangent_frame(gn / torch.where(norm > 0, norm, torch.ones_like(norm)))
+        # stored component-major (each of the 2 x 3 entries a contiguous column of N): the loops of
+        # a fused kernel (CompiledModel.tangent_hessian) that read it then vectorize
+        frame = frame.permute(1, 2, 0).contiguous().permute(2, 0, 1)
         # Hessian-vector products H t_a: one backward pass each (H is symmetric)
         hv = torch.stack([_vjp(g, xr, frame[:, a], create_graph) for a in range(frame.shape[1])], dim=1)
         proj = torch.einsum("nad,nbd->nab", frame, hv)

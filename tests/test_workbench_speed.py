@@ -46,16 +46,18 @@ def test_preview_keeps_marching_cubes_vertices_then_the_full_mesh_at_once():
             eps = 1e-6  # |grad f| by central differences: |f| / |grad f| is the distance to f = 0
             grad = [f(x + eps * e) - f(x - eps * e) for e in np.eye(3)]
             distance = np.abs(f(x)) / (np.linalg.norm(grad, axis=0) / (2 * eps))
-            shown.append((job["resolution"], float(distance.max())))
+            shown.append((job["resolution"], float(distance.max()), bool(result["dc"])))
             deliver(job, result, error)
 
         p.worker.deliver = record
         p.sliders["r"].value = 0.4
         p.wait()
-        assert [res for res, *_ in shown] == [24, 40]  # the preview, then at once the full mesh
+        # the preview, then at once the full marching-cubes mesh, then dual contouring's (interval bounds)
+        assert [(res, dc) for res, _, dc in shown] == [(24, False), (40, False), (40, True)]
         cell = 2.2 / 23  # the preview's grid step (fig1_part's box is 2.2 wide)
         assert 1e-6 < shown[0][1] < cell  # linear interpolation along the edges: off f = 0, within a cell
-        assert shown[1][1] < 2.2 / 39  # the full mesh: within one of its own cells of f = 0
+        assert shown[1][1] < 1e-9  # the full marching-cubes mesh: projected onto f = 0
+        assert shown[2][1] < 2.2 / 39  # dual contouring: within one of its own cells of f = 0
         assert p.last_job["params"]["r"] == pytest.approx(0.4)
     finally:
         p.view.close()

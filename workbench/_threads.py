@@ -115,8 +115,13 @@ class LatestWorker:
         while (item := self._next()) is not None:
             job, followup = item
             self._one(job)
-            if followup is not None and self._settled():
+            # a followup may name its own (a dict's "then"): stages run in turn until a newer job comes
+            while followup is not None and self._settled():
+                then = followup.get("then") if isinstance(followup, dict) else None
                 self._one(followup, stoppable=True)
+                if self.superseded.is_set():
+                    break
+                followup = then
             with self._cond:
                 self._busy = False
                 self._cond.notify_all()

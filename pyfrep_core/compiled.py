@@ -162,19 +162,23 @@ class CompiledModel(Model):
                 out = self._kernel(flat, **args)
         except Exception as error:  # noqa: BLE001  (any compiler failure: the eager model decides)
             out = self.eager.fn(x, **params)  # a genuine error in the model raises here
-            with self._lock:
-                if self.failure is None:
-                    self.failure = error
-                    warnings.warn(
-                        f"compiled({self.__name__}): torch.compile failed ({type(error).__name__}: "
-                        f"{str(error).splitlines()[0] if str(error) else ''}); evaluating eagerly",
-                        RuntimeWarning,
-                        stacklevel=4,  # the caller of the model
-                    )
+            self._failed("failure", error, "torch.compile", "evaluating eagerly")
             return out
         if not isinstance(out, torch.Tensor) or out.shape != flat.shape[:1]:
             return self.eager.fn(x, **params)  # not one value per point: let the caller's check name it
         return out.reshape(x.shape[:-1])
+
+    def _failed(self, attribute: str, error: BaseException, what: str, instead: str) -> None:
+        """Keep the first failure of a kernel in ``attribute``, with one RuntimeWarning naming it."""
+        with self._lock:
+            if getattr(self, attribute) is None:
+                setattr(self, attribute, error)
+                warnings.warn(
+                    f"compiled({self.__name__}): {what} failed ({type(error).__name__}: "
+                    f"{str(error).splitlines()[0] if str(error) else ''}); {instead}",
+                    RuntimeWarning,
+                    stacklevel=5,  # the caller of the model
+                )
 
     def tangent_hessian(self, x: torch.Tensor) -> tuple[torch.Tensor, ...] | None:
         """f, grad f, tangent frame and tangent Hessian at points (N, d), through one fused kernel.
@@ -202,15 +206,7 @@ class CompiledModel(Model):
         try:
             kernel = self._second_order_kernel(x.dtype, x.device, _chunk_size(x, None), values)
         except Exception as error:  # noqa: BLE001  (any tracing or compiler failure: the eager passes decide)
-            with self._lock:
-                if self.second_order_failure is None:
-                    self.second_order_failure = error
-                    warnings.warn(
-                        f"compiled({self.__name__}): the second-order kernel failed ({type(error).__name__}: "
-                        f"{str(error).splitlines()[0] if str(error) else ''}); differentiating eagerly",
-                        RuntimeWarning,
-                        stacklevel=4,
-                    )
+            self._failed("second_order_failure", error, "the second-order kernel", "differentiating eagerly")
             return None
         args = [torch.as_tensor(v, dtype=x.dtype, device=x.device) for v in values.values()]
         n, size = x.shape[0], _chunk_size(x, None)

@@ -154,6 +154,7 @@ class PushPullControls:
         self._style.EndRotate()  # started by the style's own press observer
         self.pick(point)
         self._dragging = self.normal is not None
+        self.panel.view.hold_camera = self._dragging  # the camera stays put under the mouse
 
     def _on_move(self, *_: Any) -> None:
         if not self._dragging:
@@ -165,6 +166,7 @@ class PushPullControls:
     def _on_release(self, *_: Any) -> None:
         if self._dragging:
             self._dragging = False
+            self.panel.view.hold_camera = False
             return
         if self._press_xy is None or self.drag.value:
             return

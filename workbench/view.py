@@ -150,6 +150,7 @@ class MeshView:
         self.last_render_s = 0.0
         self.framed: tuple[float, ...] | None = None  # the bounds the camera was last fitted to
         self._quiet = False
+        self.hold_camera = False  # set while the user drags the surface: no refit under the mouse
         self.plane = vtkPlane()  # the section's clip plane, shared by the surface and the cloud
         self.widget = self._make_widget()
         self._make_section(section)
@@ -311,7 +312,7 @@ class MeshView:
             self._apply_section()
         if first or reset_camera:
             self.render(reset_camera=True)
-        elif self._outgrown():
+        elif self._outgrown() and not self.hold_camera:
             self.render(refit=True)
         else:
             self.render()

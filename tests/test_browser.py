@@ -142,14 +142,26 @@ def test_slider_remeshes_and_the_view_changes(page):
     assert changed > 0.005, f"only {changed:.2%} of the view's pixels changed"
 
     # the model's kernels compile in the kernel's background after the first mesh; then moves run compiled
+    # (marching cubes at full resolution says so, until dual contouring's eager mesh replaces it)
+    from playwright.sync_api import TimeoutError as PlaywrightTimeout
+
     deadline = time.monotonic() + 240
     key = "ArrowLeft"
-    while "(compiled)" not in status_text(page) and time.monotonic() < deadline:
-        time.sleep(3.0)
+    compiled_mesh = (  # the status line's text at the moment it says "(compiled)"
+        "() => { const s = [...document.querySelectorAll('.widget-html-content')]"
+        ".filter(e => e.innerText.includes('remeshed in')).pop();"
+        " return s && s.innerText.includes('(compiled)') ? s.innerText : false; }"
+    )
+    compiled_text = ""
+    while time.monotonic() < deadline:
         handle.focus()
         page.keyboard.press(key)
         key = "ArrowRight" if key == "ArrowLeft" else "ArrowLeft"
-    compiled_text = status_text(page)
+        try:
+            compiled_text = page.wait_for_function(compiled_mesh, timeout=3_000, polling=50).json_value()
+            break
+        except PlaywrightTimeout:
+            continue
     page.screenshot(path=str(ARTIFACTS / "shape_compiled.png"))
     assert "(compiled)" in compiled_text, compiled_text
     assert int(re.search(r"(\d+) triangles", compiled_text).group(1)) > 0
@@ -363,7 +375,7 @@ def test_dragging_the_surface_in_the_view_moves_the_sliders(page):
         page.mouse.move(x + k, y + 3 * k)  # down the screen: the normal there points down and out
         time.sleep(0.1)
     page.mouse.up()
-    status = page.locator(".widget-html-content:visible", has_text="push-pull").first
+    status = page.locator(".widget-html-content:visible", has_text=re.compile(r"^push-pull: ")).first
     deadline = time.monotonic() + 120
     while "picked" in status.inner_text() or "click the surface" in status.inner_text():
         assert time.monotonic() < deadline, status.inner_text()

@@ -55,6 +55,30 @@ RECOMPILE_LIMIT = 64  # variants per model (dtypes x values, grad f); set proces
 
 _state = threading.local()
 
+# Inductor's Python binding of a CPU kernel holds the GIL while the kernel's C++ loop runs, so
+# kernels called from several threads (the chunks of pyfrep_core.diff's pool) run one at a time.
+# The loop touches no Python object: its arguments are read first (with the GIL), the loop runs
+# without it, and an exception it throws is re-raised once the GIL is back.  Patched only where
+# the binding is the one this was written for (torch 2.13, pinned); elsewhere left alone (serial).
+_HOLDS_GIL = "kernel({}); Py_RETURN_NONE;"
+_RELEASES_GIL = (
+    "auto call_args = std::make_tuple({}); std::exception_ptr error; "
+    "Py_BEGIN_ALLOW_THREADS "
+    "try {{ std::apply(kernel, call_args); }} catch (...) {{ error = std::current_exception(); }} "
+    "Py_END_ALLOW_THREADS "
+    "if (error) std::rethrow_exception(error); Py_RETURN_NONE;"
+)
+
+
+def _kernels_release_the_gil() -> bool:
+    try:
+        from torch._inductor.codecache import CppPythonBindingsCodeCache as Bindings
+    except ImportError:
+        return False
+    if getattr(Bindings, "call_entry_function", None) == _HOLDS_GIL:
+        Bindings.call_entry_function = _RELEASES_GIL
+    return getattr(Bindings, "call_entry_function", None) == _RELEASES_GIL
+
 
 @contextmanager
 def first_order() -> Iterator[None]:
@@ -105,6 +129,7 @@ class CompiledModel(Model):
     chunk_points = CHUNK_POINTS
 
     def __init__(self, eager: Model, dynamic: bool = True, second_order: bool = False):
+        _kernels_release_the_gil()
         self.eager = eager
         self.second_order = second_order
         self.failure: BaseException | None = None

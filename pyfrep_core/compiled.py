@@ -110,6 +110,8 @@ def _needs_eager(x: torch.Tensor, params: dict[str, Any]) -> bool:
     """True where the compiled kernel must not be used (see the module docstring)."""
     if x.shape[:-1].numel() < 2 or torch._C._are_functorch_transforms_active():
         return True
+    if type(x) is not torch.Tensor:  # a subclass (interval bounds over boxes): its own dispatch, not a kernel's
+        return True
     tensors = [x, *(v for v in params.values() if isinstance(v, torch.Tensor))]
     if fwad._current_level >= 0 and any(fwad.unpack_dual(t).tangent is not None for t in tensors):
         return True

@@ -148,9 +148,14 @@ def test_lattices_have_no_self_intersections_and_stay_closed_manifolds(shape, mo
     assert len(self_intersecting_pairs(m)) == 0
     assert_closed_manifold(m)
     if shape == "microstructure":  # control: without the fallback to marching-cubes fans, pairs intersect
-        from pyfrep_core.meshing import dual_contouring
+        from pyfrep_core.meshing import dual_contouring, folds
 
-        monkeypatch.setattr(dual_contouring, "_without_folds", lambda faces, q, c, p, x, *rest: (faces, x, 0))
+        def no_fallback(quads, corner, points, x, *rest):
+            crossing = len(x) + np.arange(len(quads))
+            faces = folds._hybrid(crossing, np.zeros(len(x), dtype=bool), folds._halves(quads, corner))
+            return faces, np.concatenate([x, points]), 0
+
+        monkeypatch.setattr(dual_contouring, "_without_folds", no_fallback)
         plain = polygonize(f, bounds, n, method="dc", progress=False)
         assert len(self_intersecting_pairs(plain)) > 0
         assert (edge_table(plain.faces)[1] > 2).any()  # and edges in four faces
@@ -158,7 +163,7 @@ def test_lattices_have_no_self_intersections_and_stay_closed_manifolds(shape, mo
 
 def test_marching_cubes_fans_everywhere_stay_closed_manifold_and_cell_local(monkeypatch):
     # every vertex sent to the fallback: each cell's marching-cubes polygon fanned from its mass point
-    from pyfrep_core.meshing import folds
+    from pyfrep_core.meshing import dual_contouring, folds
 
     real, calls = folds._intersecting_pairs, []
 
@@ -169,15 +174,43 @@ def test_marching_cubes_fans_everywhere_stay_closed_manifold_and_cell_local(monk
         return np.repeat(np.arange(len(faces))[:, None], 2, axis=1)  # "every face intersects"
 
     monkeypatch.setattr(folds, "_intersecting_pairs", everything_first)
+    monkeypatch.setattr(dual_contouring, "_CONFINED", np.zeros(256, dtype=bool))  # every face searched
     n = 32
     m = polygonize(fig1_part, BOX, n, method="dc", progress=False)
-    assert calls and m.n_faces == 2 * calls[0]  # each quad (two triangles) became four
+    assert calls and m.n_faces == calls[0]  # each quad's four triangles became its two diamonds' four
     assert_closed_manifold(m)
     assert len(self_intersecting_pairs(m)) == 0
     # every triangle lies in one grid cell (closed): a fan of that cell's polygon
     h = 2.2 / (n - 1)
     corners = (m.vertices[m.faces] + 1.1) / h
     assert (np.floor(corners.max(axis=1) - 1e-9) == np.floor(corners.min(axis=1) + 1e-9)).all()
+
+
+@pytest.mark.parametrize("shape", ["fig1", "gyroid", "microstructure"])
+def test_the_fold_search_looks_only_at_cells_not_proved_free_of_folds(shape, monkeypatch):
+    # a cell with one surface component and two crossings per face holds a cone over a simple polygon
+    # on its boundary (dual_contouring._confined): faces can only meet in the other cells, so only
+    # faces with a vertex there are searched, and the independent check still finds nothing
+    from pyfrep_core.meshing import folds
+    from pyfrep_core.models import microstructure
+
+    real, searched = folds._intersecting_pairs, []
+
+    def counted(v, faces, origin, h, changed=None):
+        searched.append((int(changed.sum()), len(faces)))
+        return real(v, faces, origin, h, changed)
+
+    monkeypatch.setattr(folds, "_intersecting_pairs", counted)
+    f, bounds, n = {"fig1": (fig1_part, BOX, 96), "gyroid": (gyroid_solid, BOX, 64)}.get(
+        shape, (microstructure, None, 48)
+    )
+    m = polygonize(f, bounds, n, method="dc", progress=False)
+    assert len(self_intersecting_pairs(m)) == 0
+    assert_closed_manifold(m)
+    if shape == "microstructure":  # rods thinner than a cell: cells with two components, searched
+        assert searched and all(0 < watched < total for watched, total in searched)
+    else:  # nothing thinner than a cell: nothing to search
+        assert all(watched == 0 for watched, _ in searched)
 
 
 def test_the_self_intersection_check_finds_an_intersection():

@@ -21,21 +21,24 @@ configuration has several surface components (as marching cubes would triangulat
 vertex per component, each from its own edges; a face with four crossings joins them so that
 the corners with f > 0 stay apart (the choice depends on the face's values only, so the two
 cells sharing the face agree).  Every crossing edge then gives one quad, joining the vertices of
-the four cells around it that hold its component; the quad is split along the diagonal that
-keeps both triangles facing outward.
+the four cells around it that hold its component; the quad is cut at its edge's crossing into
+four triangles (crossing, v_i, v_i+1), so that the crossing, a point of f = 0, is a vertex too.
 
 Smooth patches: a vertex whose QEF has one significant direction is moved onto f = 0 by a Newton
 step along grad f (when it stays in its cell), so that spheres and TPMS come out at least as
 accurate as projected marching cubes.
 
-No self-intersections: where faces still pierce each other (sheets closer than a cell, a vertex
-far from its crossings), the cells involved fall back to marching cubes' polygon, fanned from
-their mass points (:mod:`pyfrep_core.meshing.folds`).
+No self-intersections, proved where it can be and searched where it cannot: with every vertex
+strictly inside its cell, the triangles' parts in a cell with one surface component and two
+crossings per face form a cone over a simple polygon on the cell's boundary, which cannot meet
+itself or its neighbours (:func:`_confined`).  Only faces with a vertex in the other cells
+(sheets closer than a cell) are searched for intersecting pairs; there the cells involved fall
+back to marching cubes' polygon, fanned from their mass points (:mod:`pyfrep_core.meshing.folds`).
 
 Memory: the octree's leaf blocks are sampled and contoured in slabs along x of at most
 ``SLAB_BLOCKS`` blocks (samples, Hermite data and QEFs of one slab at a time; the slab's last
 cell layer is carried to the next one's quads); what grows with the surface is the mesh itself
-and the whole-mesh passes (diagonals, unbiasing, folds), which run in chunks.
+and the whole-mesh passes (unbiasing, folds), which run in chunks.
 
 >>> from pyfrep_core import block
 >>> m = dual_contour(lambda x: block(x, vertex=(-0.5, -0.5, -0.5), dx=1, dy=1, dz=1), ((-1.0,) * 3, (1.0,) * 3), 24)
@@ -68,6 +71,7 @@ SINGULAR_CUTOFF = 0.05  # relative eigenvalue of A^T A below which a direction i
 LEAF_BLOCK = 4  # cells per leaf block edge: the octree's finest interval test
 SLAB_BLOCKS = 1 << 14  # leaf blocks sampled and contoured at a time (memory: about 200 MB of Hermite data)
 FINISH_CHUNK = 1 << 18  # quads or triangles at a time in the whole-mesh passes (their temporaries' memory)
+INTERIOR = 1e-6  # cells: vertices kept this far inside their cells, crossings this far from the edges' ends
 
 
 # ----------------------------------------------------------------------------- cube tables
@@ -141,6 +145,37 @@ def _components() -> tuple[np.ndarray, np.ndarray]:
 
 
 _COMPONENT, _N_COMPONENTS = _components()
+
+
+def _confined() -> np.ndarray:
+    """(256,) whether a sign configuration's cell is proved free of folds: one component and no face
+    with four crossings.
+
+    Each quad is cut at its edge's crossing into four triangles (crossing, v_i, v_i+1); the segment
+    from v_i to v_i+1 (in two cells sharing a face) meets that face at a point q inside it.  So
+    the triangles' parts in a cell with one vertex v make the cone from v over a closed polygon on
+    the cell's boundary: on each face a path crossing - q - crossing (or the straight segment
+    crossing - crossing where a fan cuts the diamond).  With one component and two crossings per
+    face that polygon is simple, and the cone from a point strictly inside a convex cell over a
+    simple curve on its boundary does not meet itself (each ray from v leaves the cell once).
+    Neighbouring cells share only their common paths on their common faces.  Faces can therefore
+    intersect only inside cells that are not confined (two or more components, or a face with four
+    crossings): the fold search looks there only.
+    """
+    faces = []
+    for a in range(3):
+        for side in (0, 1):
+            faces.append([e for e in range(12) if all(_CORNER[c][a] == side for c in _EDGE_CORNERS[e])])
+    out = np.zeros(256, dtype=bool)
+    for cfg in range(256):
+        inside = [(cfg >> c) & 1 for c in range(8)]
+        crossing = [inside[_EDGE_CORNERS[e][0]] != inside[_EDGE_CORNERS[e][1]] for e in range(12)]
+        four = any(sum(crossing[e] for e in on) == 4 for on in faces)
+        out[cfg] = _N_COMPONENTS[cfg] == 1 and not four
+    return out
+
+
+_CONFINED = _confined()
 
 
 # ----------------------------------------------------------------------------- the mesher
@@ -237,8 +272,10 @@ def _slabs(blocks: np.ndarray, block: int, ncell_x: int) -> list[tuple[np.ndarra
 
 def _hermite(
     f: Callable, s: Samples, lo: np.ndarray, spacing: np.ndarray, device: Any, tol: float | None
-) -> tuple[np.ndarray, np.ndarray]:
-    """Roots of f on the crossing edges (E, 3) and unit normals grad f / |grad f| there (E, 3), float64."""
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Roots of f on the crossing edges (E, 3), unit normals grad f / |grad f| there (E, 3) and
+    grad f (E, 3), float64.  A root is kept ``INTERIOR`` of a cell from the edge's ends (a root on a
+    grid node would touch the crossings of the other edges there)."""
     start = lo + s.edge_node * spacing
     h = spacing[s.edge_axis]
     rows = np.arange(len(start))
@@ -250,7 +287,7 @@ def _hermite(
     slope = s.f1 - s.f0
     root, rest, c_rest = _bracketed_roots(f, start, start_axis, h, s.edge_axis, c, slope, s.f0, s.f1, step_tol, device)
     root[rest] = c_rest  # not converged in max_iter steps (a grazing edge): the best estimate
-    root = np.where(np.isfinite(root), root, c)
+    root = np.clip(np.where(np.isfinite(root), root, c), INTERIOR, 1.0 - INTERIOR)
     points = start.copy()
     points[rows, s.edge_axis] = start_axis + root * h
     _, g = _value_and_grad(f, points, device)
@@ -261,27 +298,30 @@ def _hermite(
     # no gradient there: the edge's own direction, toward increasing f
     bad = np.flatnonzero(~good)
     normal[bad, s.edge_axis[bad]] = np.sign(s.f1[bad] - s.f0[bad])
-    return points, normal
+    return points, normal, g
 
 
 class _Vertices(NamedTuple):
     """One slab's vertices and the quads of the crossing edges it owns (global vertex indices).
 
     x, mass, gradient (NaN where not smooth-projected) : (V, 3) per vertex; cell : (V, 3) int32 its cell;
+    confined : (V,) bool its cell is proved free of folds (:func:`_confined`);
     quads : (Q, 4) int64 counter-clockwise about +axis; axis : (Q,) int8 the edges' axes;
     inside_start : (Q,) bool f > 0 at the edge's start; node : (Q, 3) int32 its start node; points : (Q, 3)
-    the edge's root.
+    the edge's root; point_gradient : (Q, 3) grad f there.
     """
 
     x: np.ndarray
     mass: np.ndarray
     gradient: np.ndarray
     cell: np.ndarray
+    confined: np.ndarray
     quads: np.ndarray
     axis: np.ndarray
     inside_start: np.ndarray
     node: np.ndarray
     points: np.ndarray
+    point_gradient: np.ndarray
 
 
 def _slab(
@@ -305,7 +345,7 @@ def _slab(
     the previous slab's last cell layer (flat keys, global first vertex, configuration), whose
     vertices the quads of edges on layer ``first`` need.  Returns the slab's last layer as the next carry.
     """
-    points, normal = _hermite(f, s, lo, spacing, device, tol)
+    points, normal, point_gradient = _hermite(f, s, lo, spacing, device, tol)
     ncell = np.asarray(cells, dtype=np.int64)
     # vertices: one per (cell, component)
     n_comp = _N_COMPONENTS[s.config].astype(np.int64)
@@ -359,10 +399,10 @@ def _slab(
     count = sums[:, 12].copy()
     del sums
     mass /= np.maximum(count, 1.0)[:, None]
-    # the vertices' cells
+    # the vertices' cells, less a margin: every vertex strictly inside its cell (see _confined)
     vcell = np.repeat(s.cell, n_comp, axis=0)
-    cell_lo = lo + vcell * spacing
-    cell_hi = np.minimum(cell_lo + spacing, hi)
+    cell_lo, cell_hi = _inner(vcell, lo, hi, spacing)
+    np.clip(mass, cell_lo, cell_hi, out=mass)
     x, rank = _solve_qef(ata, atb, mass, cell_lo, cell_hi)
     del ata, atb
     # a cell crossed by two or more sheets (a feature thinner than the cell): their QEF points, each
@@ -377,11 +417,13 @@ def _slab(
         mass,
         smooth_gradient,
         vcell.astype(np.int32),
+        np.repeat(_CONFINED[s.config], n_comp),
         vert[own],
         a[own].astype(np.int8),
         s.f0[own] > 0,
         s.edge_node[own].astype(np.int32),
         points[own],
+        point_gradient[own],
     )
     last = s.cell[:, 0] == end - 1
     next_carry = (s.cell_key[last], first_vertex[:-1][last] + offset, s.config[last])
@@ -397,8 +439,8 @@ def _contour(
     cells: tuple[int, int, int],
     device: Any,
 ) -> Mesh:
-    """The mesh from all slabs' vertices and quads (``parts``, emptied): triangles, unbiasing, folds,
-    compaction, grad f."""
+    """The mesh from all slabs' vertices and quads (``parts``, emptied): each quad cut at its
+    crossing into four triangles, unbiasing, folds, compaction, grad f."""
     columns = [list(column) for column in zip(*parts)]
     parts.clear()
     whole = []
@@ -407,33 +449,41 @@ def _contour(
         column.clear()
     v = _Vertices(*whole)
     del columns, whole
+    n = len(v.x)
     ncell = np.asarray(cells, dtype=np.int64)
-    x, mass, smooth_gradient = v.x, v.mass, v.gradient
-    # quads oriented outward (toward f <= 0)
-    outward = np.where(v.inside_start, 1.0, -1.0)  # +axis when the start is inside
+    # quads oriented outward (toward f <= 0), cut at their crossings (vertices n, n + 1, ...)
     quads = np.where(v.inside_start[:, None], v.quads, v.quads[:, ::-1])
     v = v._replace(quads=None)
-    direction = np.zeros((len(quads), 3))
-    direction[np.arange(len(quads)), v.axis] = outward
-    faces, x = _triangulate(quads, x, direction, mass)
-    del direction, outward
-    smooth_gradient[(x == mass).all(axis=1)] = np.nan  # sent back to its mass point: not smooth-projected
-    x = _unbias(f, x, faces, smooth_gradient, v.cell, lo, hi, spacing, device)
-    del smooth_gradient
+    crossing = np.repeat(np.arange(n, n + len(quads)), 4)
+    halves = np.stack([crossing, quads.ravel(), quads[:, [1, 2, 3, 0]].ravel()], axis=1)
+    del crossing
+    x = _unbias(f, v.x, v.points, halves, v.gradient, v.point_gradient, v.cell, lo, hi, spacing, device)
+    del halves
     v = v._replace(gradient=None, cell=None)  # not needed any more: memory for what follows
-    # where quads pierce each other, the marching-cubes fans of the cells involved (adds crossings)
+    # where faces of cells that are not confined intersect, the marching-cubes fans of the cells involved
     positive = v.node.astype(np.int64)  # the end of each quad's edge with f > 0 (pairs crossings on a face)
     positive[np.arange(len(quads)), v.axis] += ~v.inside_start
     corner = (positive[:, 0] * (ncell[1] + 1) + positive[:, 1]) * (ncell[2] + 1) + positive[:, 2]
     del positive
-    faces, x, _ = _without_folds(faces, quads, corner, v.points, x, mass, lo, spacing)
+    faces, x, _ = _without_folds(quads, corner, v.points, x, v.mass, v.confined, lo, spacing)
     used = np.unique(faces)
     index = np.full(len(x), -1, dtype=np.int64)
     index[used] = np.arange(len(used))
     x = x[used]
     faces = index[faces]
-    _, gradient = _value_and_grad(f, x, device)
+    # grad f: evaluated at the vertices in cells (sorted first), known at the crossings
+    in_cell = int(np.searchsorted(used, n))
+    gradient = np.empty_like(x)
+    gradient[:in_cell] = _value_and_grad(f, x[:in_cell], device)[1]
+    gradient[in_cell:] = v.point_gradient[used[in_cell:] - n]
     return Mesh(x, faces, _normals(gradient, x, faces), gradient=gradient)
+
+
+def _inner(cell: np.ndarray, lo: np.ndarray, hi: np.ndarray, spacing: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Corners (V, 3) of cells (V, 3) of the grid from ``lo`` to ``hi``, less ``INTERIOR`` of a cell on each side."""
+    cell_lo = lo + cell * spacing
+    cell_hi = np.minimum(cell_lo + spacing, hi)
+    return cell_lo + INTERIOR * spacing, cell_hi - INTERIOR * spacing
 
 
 def _incidence(vert: np.ndarray, n_vert: int) -> sparse.csc_matrix:
@@ -538,35 +588,40 @@ def _project_smooth(
 def _unbias(
     f: Callable,
     x: np.ndarray,
+    points: np.ndarray,
     faces: np.ndarray,
     gradient: np.ndarray,
+    point_gradient: np.ndarray,
     cell: np.ndarray,
     lo: np.ndarray,
     hi: np.ndarray,
     spacing: np.ndarray,
     device: Any,
 ) -> np.ndarray:
-    """Smooth vertices moved along the normal so that the triangles' mean distance to f = 0 vanishes
-    (each kept in its cell: ``cell`` (V, 3) indices into the grid from ``lo`` to ``hi``, cells ``spacing``).
+    """Smooth vertices (V, 3) moved along the normal so that the triangles' mean distance to f = 0
+    vanishes (each kept inside its cell: ``cell`` (V, 3) indices into the grid from ``lo`` to ``hi``,
+    cells ``spacing``).  ``faces`` index the vertices, then the crossings ``points`` (fixed: on f = 0).
 
     Flat triangles with their corners on a curved surface lie on its concave side: the chord
     error e(x) is a quadratic vanishing at the corners, e = a l1 l2 + b l2 l3 + c l3 l1 in
     barycentric coordinates, whose mean over the triangle, (a + b + c) / 12, is 3/4 of its value
-    at the centroid, (a + b + c) / 9.  Shifting a vertex by 3/4 of the mean centroid distance
-    f / |grad f| of its triangles (those whose corners are all smooth) removes the bias that
-    would otherwise make the volume err by O(h^2) (the cylinders' holes of the Fig. 1 part) and
-    halves the largest distance to the surface.
+    at the centroid, (a + b + c) / 9.  A triangle moves by the mean of its corners' shifts, so
+    each of its k movable corners is asked to move by 3/k times 3/4 of the centroid distance
+    f / |grad f| (triangles whose corners are all smooth); a vertex moves by the mean of what its
+    triangles ask.  This removes the bias that would otherwise make the volume err by O(h^2)
+    (the cylinders' holes of the Fig. 1 part) and halves the largest distance to the surface.
     """
-    known = np.isfinite(gradient).all(axis=1)
+    n = len(x)
+    known = np.concatenate([np.isfinite(gradient).all(axis=1), np.ones(len(points), dtype=bool)])
     smooth = known[faces].all(axis=1)
     if not smooth.any():
         return x
-    length = np.linalg.norm(gradient, axis=1)
+    length = np.linalg.norm(np.concatenate([gradient, point_gradient]), axis=1)
     # 1-D gathers per coordinate (fancy (F, 3, 3) ones cost more); int32 indices: half the memory
     corners = [faces[smooth, k].astype(np.int32) for k in range(3)]
     del smooth
     tri_count = len(corners[0])
-    columns = [np.ascontiguousarray(x[:, i]) for i in range(3)]
+    columns = [np.concatenate([x[:, i], points[:, i]]) for i in range(3)]
     depth = np.empty(tri_count)
     for start in range(0, tri_count, FINISH_CHUNK):  # chunks: the centroids' memory stays bounded
         ends = [k[start : start + FINISH_CHUNK] for k in corners]
@@ -576,66 +631,21 @@ def _unbias(
         with np.errstate(divide="ignore", invalid="ignore"):
             mean_length = (length[ends[0]] + length[ends[1]] + length[ends[2]]) / 3.0
             depth[start : start + FINISH_CHUNK] = _f64(f, centroid, device) / mean_length  # > 0: centroid inside
-    depth = np.where(np.isfinite(depth), depth, 0.0)
-    n = len(x)
+    del columns
+    movable = sum((k < n).astype(np.int64) for k in corners)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ask = np.where(np.isfinite(depth) & (movable > 0), 2.25 * depth / movable, 0.0)
     total = np.zeros(n)
     count = np.zeros(n)
-    for k in range(3):
-        total += np.bincount(corners[k], weights=depth, minlength=n)
-        count += np.bincount(corners[k], minlength=n)
+    for k in corners:
+        mine = k < n
+        total += np.bincount(k[mine], weights=ask[mine], minlength=n)
+        count += np.bincount(k[mine], minlength=n)
     move = np.flatnonzero(count > 0)
-    shift = 0.75 * total[move] / count[move]
+    shift = total[move] / count[move]
     with np.errstate(divide="ignore", invalid="ignore"):
         unit = gradient[move] / length[move, None]
     out = x.copy()
-    cell_lo = lo + cell[move] * spacing
-    out[move] = np.clip(x[move] - shift[:, None] * unit, cell_lo, np.minimum(cell_lo + spacing, hi))  # outward: -grad f
+    inner_lo, inner_hi = _inner(cell[move], lo, hi, spacing)
+    out[move] = np.clip(x[move] - shift[:, None] * unit, inner_lo, inner_hi)  # outward: -grad f
     return out
-
-
-def _triangulate(
-    quads: np.ndarray, x: np.ndarray, direction: np.ndarray, mass: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """Two triangles per quad (Q, 4) (counter-clockwise seen from outside; ``direction`` (Q, 3) the
-    outward axis): the diagonal whose triangles both face outward (the better of the two otherwise).
-    Where neither does, the quad's vertices go back to their mass points (up to three rounds)."""
-    second = np.zeros(len(quads), dtype=bool)
-    folded = np.zeros(len(quads), dtype=bool)
-    for _ in range(4):
-        columns = [np.ascontiguousarray(x[:, i]) for i in range(3)]  # coordinates apart: 1-D gathers
-        for start in range(0, len(quads), FINISH_CHUNK):  # chunks: the temporaries' memory stays bounded
-            part = slice(start, start + FINISH_CHUNK)
-            axis = [np.ascontiguousarray(direction[part, i]) for i in range(3)]
-            v = [[column[quads[part, k]] for column in columns] for k in range(4)]
-            score = []
-            for t1, t2 in (((0, 1, 2), (0, 2, 3)), ((1, 2, 3), (1, 3, 0))):
-                s1 = _facing(v[t1[0]], v[t1[1]], v[t1[2]], axis)
-                s2 = _facing(v[t2[0]], v[t2[1]], v[t2[2]], axis)
-                score.append(np.minimum(s1, s2))
-            second[part] = score[1] > score[0]
-            folded[part] = np.maximum(score[0], score[1]) <= 0
-        if not folded.any():
-            break
-        bad = np.unique(quads[folded])
-        moved = bad[(x[bad] != mass[bad]).any(axis=1)]
-        if len(moved) == 0:
-            break
-        x = x.copy()
-        x[moved] = mass[moved]
-    tri_a = np.where(second[:, None], quads[:, [1, 2, 3]], quads[:, [0, 1, 2]])
-    tri_b = np.where(second[:, None], quads[:, [1, 3, 0]], quads[:, [0, 2, 3]])
-    faces = np.concatenate([tri_a, tri_b])
-    keep = (faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 2] != faces[:, 0])
-    return faces[keep], x
-
-
-def _facing(a: list, b: list, c: list, direction: list) -> np.ndarray:
-    """Cosine between the triangle's right-hand normal and ``direction`` (-1 for a zero-area one);
-    each argument is three coordinate arrays (Q,)."""
-    u = [b[i] - a[i] for i in range(3)]
-    w = [c[i] - a[i] for i in range(3)]
-    n = [u[(i + 1) % 3] * w[(i + 2) % 3] - u[(i + 2) % 3] * w[(i + 1) % 3] for i in range(3)]
-    length = np.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2])
-    with np.errstate(divide="ignore", invalid="ignore"):
-        cos = (n[0] * direction[0] + n[1] * direction[1] + n[2] * direction[2]) / length
-    return np.where(length > 0, cos, -1.0)

@@ -15,9 +15,13 @@ whose diamonds are all cut along p q is the fan of its cell's marching-cubes pol
 mass point (the mean of those crossings, inside the cell) it lies in its cell.  Every choice
 keeps the mesh watertight, manifold and oriented.
 
-:func:`_unfold` finds the faces that intersect (:func:`_intersecting_pairs`, an exact
-orientation test on the pairs of faces that share a grid cell), turns their vertices into
-marching-cubes fans, and repeats on the faces that changed.
+Dual contouring here always cuts its quads into half-diamonds (the crossing is a vertex), so the
+mesh is the cone of each cell's vertex over a polygon on the cell's boundary; in cells with one
+surface component and two crossings per face it cannot intersect itself
+(``dual_contouring._confined``).  :func:`_unfold` finds the faces that intersect among those
+with a vertex in the other cells (:func:`_intersecting_pairs`, an exact orientation test on the
+pairs of faces that share a grid cell), turns their vertices into marching-cubes fans, and
+repeats.
 
 >>> import numpy as np
 >>> v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0.2, 0.2, -0.5], [0.2, 0.2, 0.5], [0.3, 0.6, 0.0]])
@@ -254,43 +258,32 @@ def _pair(partner: np.ndarray, items: np.ndarray, keys: tuple) -> None:
     partner[i], partner[j] = j, i
 
 
-def _hybrid(
-    quads: np.ndarray, second: np.ndarray, crossing: np.ndarray, fanned: np.ndarray, halves: tuple
-) -> np.ndarray:
+def _hybrid(crossing: np.ndarray, fanned: np.ndarray, halves: tuple) -> np.ndarray:
     """Faces of the mesh whose vertices in ``fanned`` (a vertex mask) are marching-cubes fans.
 
-    ``quads`` (Q, 4) counter-clockwise seen from outside, ``second`` (Q,) their diagonal (q1 q3
-    when True, else q0 q2), ``crossing`` (Q,) the vertex index of each quad's edge crossing,
-    ``halves`` from :func:`_halves`.  Quads with a fanned vertex are split at their crossing into
-    four half-diamonds; two halves on the same mesh edge with a fanned end are cut along the
-    crossings instead.
+    ``crossing`` (Q,) the vertex index of each quad's edge crossing, ``halves`` from :func:`_halves`.
+    Every quad is cut at its crossing into four half-diamonds; two halves on the same mesh edge
+    with a fanned end are cut along the crossings instead.
     """
     a, b, partner = halves
-    split = fanned[quads].any(axis=1)
-    whole = quads[~split]
-    sec = second[~split, None]
-    faces = [
-        np.where(sec, whole[:, [1, 2, 3]], whole[:, [0, 1, 2]]),
-        np.where(sec, whole[:, [1, 3, 0]], whole[:, [0, 2, 3]]),
-    ]
-    half = np.flatnonzero(np.repeat(split, 4))
     c = np.repeat(crossing, 4)
-    cut = (partner[half] >= 0) & (fanned[a[half]] | fanned[b[half]])
-    faces.append(np.stack([c[half[~cut]], a[half[~cut]], b[half[~cut]]], axis=1))
+    cut = (partner >= 0) & (fanned[a] | fanned[b])
+    keep = ~cut
+    faces = [np.stack([c[keep], a[keep], b[keep]], axis=1)]
     # the diamond (p, v, p', w) of the halves (p, v, w) and (p', w, v), cut along p p': each half
     # gives the triangle at its first end
-    h = half[cut]
+    h = np.flatnonzero(cut)
     faces.append(np.stack([c[h], a[h], c[partner[h]]], axis=1))
     return np.concatenate(faces)
 
 
 def _unfold(
     quads: np.ndarray,
-    second: np.ndarray,
     corner: np.ndarray,
     crossing_points: np.ndarray,
     x: np.ndarray,
     mass: np.ndarray,
+    confined: np.ndarray,
     origin: np.ndarray,
     h: np.ndarray,
     rounds: int = UNFOLD_ROUNDS,
@@ -298,10 +291,12 @@ def _unfold(
     """Faces and vertices with the vertices of intersecting faces turned into marching-cubes fans
     at their mass points, round by round; and the number of intersecting pairs left.
 
-    ``quads`` (Q, 4), ``second`` (Q,) as in :func:`_hybrid`, ``corner`` as in :func:`_halves`;
-    ``crossing_points`` (Q, 3) the roots on the quads' edges (appended to the vertices, used where
-    a quad is split); ``x``, ``mass`` (V, 3).  The ends of a mesh edge in four quads start fanned
-    (their fans hold no such edge: the mesh becomes manifold there).
+    ``quads`` (Q, 4) counter-clockwise seen from outside, ``corner`` as in :func:`_halves`;
+    ``crossing_points`` (Q, 3) the roots on the quads' edges (appended to the vertices);
+    ``x``, ``mass`` (V, 3) strictly inside their cells; ``confined`` (V,) whether a vertex's cell
+    is proved free of folds (``dual_contouring._confined``): only pairs with a face holding a vertex
+    of another cell are searched.  The ends of a mesh edge in four quads start fanned (their fans
+    hold no such edge: the mesh becomes manifold there).
     """
     n = len(x)
     crossing = n + np.arange(len(quads))
@@ -316,10 +311,13 @@ def _unfold(
     del crowded
     verts = np.concatenate([x, crossing_points])
     verts[fanned[:n].nonzero()[0]] = mass[fanned]
-    faces = _hybrid(quads, second, crossing, fanned, halves)
-    bad = _intersecting_pairs(verts, faces, origin, h)
-    for _ in range(rounds):
-        if len(bad) == 0:
+    exposed = np.concatenate([~confined, np.zeros(len(quads), dtype=bool)])
+    bad = np.zeros((0, 2), dtype=np.int64)
+    for round_ in range(rounds + 1):
+        faces = _hybrid(crossing, fanned, halves)
+        watch = exposed[faces].any(axis=1)
+        bad = _intersecting_pairs(verts, faces, origin, h, watch) if watch.any() else np.zeros((0, 2), dtype=np.int64)
+        if len(bad) == 0 or round_ == rounds:
             break
         touched = np.unique(faces[bad.ravel()])
         touched = touched[touched < n]
@@ -328,31 +326,21 @@ def _unfold(
             break  # only fans left among the intersecting faces
         fanned[new] = True
         verts[new] = mass[new]
-        faces = _hybrid(quads, second, crossing, fanned, halves)
-        # the faces that changed: those with a vertex fanned in this round, or with a crossing
-        moved = np.zeros(len(verts), dtype=bool)
-        moved[new] = True
-        changed = moved[faces].any(axis=1) | (faces >= n).any(axis=1)
-        bad = _intersecting_pairs(verts, faces, origin, h, changed)
     return faces, verts, len(bad)
 
 
 def _without_folds(
-    faces: np.ndarray,
     quads: np.ndarray,
     corner: np.ndarray,
     crossing_points: np.ndarray,
     x: np.ndarray,
     mass: np.ndarray,
+    confined: np.ndarray,
     origin: np.ndarray,
     h: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray, int]:
-    """:func:`_unfold` for dual contouring's two triangles per quad: ``faces`` (2 Q, 3), the first
-    triangle of every quad, then the second (as ``dual_contouring._triangulate`` gives them)."""
-    if len(faces) != 2 * len(quads):
-        raise ValueError(f"_without_folds: expected two faces per quad, got {len(faces)} for {len(quads)} quads")
-    second = (faces[: len(quads)] == quads[:, [1, 2, 3]]).all(axis=1)
-    faces, x, left = _unfold(quads, second, corner, crossing_points, x, mass, origin, h)
+    """:func:`_unfold`, with a warning when intersecting pairs are left."""
+    faces, x, left = _unfold(quads, corner, crossing_points, x, mass, confined, origin, h)
     if left:
         warnings.warn(
             f"polygonize: {left} pairs of faces still intersect after {UNFOLD_ROUNDS} rounds of "

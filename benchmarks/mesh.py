@@ -58,7 +58,7 @@ import numpy as np
 import torch
 from skimage.measure import marching_cubes
 
-from pyfrep_core import polygonize
+from pyfrep_core import model, polygonize
 from pyfrep_core._threads import intra_op_threads
 from pyfrep_core.compiled import compiled, warm_up
 from pyfrep_core.meshing.grid import _evaluate_grid, grid_axes
@@ -174,6 +174,7 @@ def main() -> None:
 # ----------------------------------------------------------------------------- dual contouring
 
 
+@model()
 def gyroid_block(x: torch.Tensor) -> torch.Tensor:
     """The gyroid solid (paper's lattice, period 1) cut to [-1, 1]^3: exact volume 4."""
     from pyfrep_core import block, gyroid, intersection
@@ -204,6 +205,8 @@ def _child(case: str, method: str, n: int, runs: int) -> None:
 
     make, bounds, _ = CASES[case]
     f = make()
+    if method.endswith("+compiled"):  # the model through compiled kernels (compiled in the warm-up below)
+        f, method = compiled(f), method.removesuffix("+compiled")
     polygonize(f, bounds, min(n, 64), method=method, progress=False)
     before = _resident_kib("VmRSS")
     seconds, mesh = median_seconds(lambda: polygonize(f, bounds, n, method=method, progress=False), runs)
@@ -576,7 +579,7 @@ def dual_contouring_table(runs: int) -> None:
         exact = CASES[case][2]
         line = []
         figures = {}
-        for method in ("mc", "dc"):
+        for method in ("mc", "dc", "dc+compiled"):
             if method == "mc" and n > 512:
                 line.append("mc: skipped (dense grid)")
                 continue

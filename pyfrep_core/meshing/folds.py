@@ -227,6 +227,33 @@ def _intersecting_pairs(
     return pairs.reshape(-1, 2)
 
 
+def _near(v: np.ndarray, faces: np.ndarray, watch: np.ndarray, origin: np.ndarray, h: np.ndarray) -> np.ndarray:
+    """Indices of the faces that may meet a face in ``watch`` (a face mask): those with a vertex within
+    twice the largest face's span (in grid cells) of a watched face's vertex.
+
+    Two faces that meet share a point, whose cell lies within each face's span of each of its
+    vertices; so a vertex of the one lies within the sum of the spans of a vertex of the other.
+    """
+    cell = np.floor((v - origin) / h).astype(np.int64)
+    cell -= cell.min(axis=0) - 1
+    reach = 0
+    for d in range(3):  # axis by axis, 1-D gathers (a reduction over (F, 3, 3)'s middle axis costs several times more)
+        column = np.ascontiguousarray(cell[:, d])
+        for start in range(0, len(faces), SLAB_FACES):  # chunks: the gathers' memory stays bounded
+            a, b, c = (column[faces[start : start + SLAB_FACES, k]] for k in range(3))
+            span = np.maximum(np.maximum(a, b), c) - np.minimum(np.minimum(a, b), c)
+            reach = max(reach, int(span.max(initial=0)))
+    pad = 2 * reach
+    cell += pad
+    dims = cell.max(axis=0) + pad + 1
+    key = (cell[:, 0] * dims[1] + cell[:, 1]) * dims[2] + cell[:, 2]
+    near = np.unique(key[faces[watch]])
+    for stride in (dims[1] * dims[2], dims[2], 1):  # the box dilation, axis by axis
+        near = np.unique((near[:, None] + stride * np.arange(-pad, pad + 1)).ravel())
+    hit = np.isin(key, near)
+    return np.flatnonzero(hit[faces].any(axis=1))
+
+
 def _halves(quads: np.ndarray, corner: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The four half-diamonds (quad q_i, q_i+1) of each quad (4 Q,), their mesh edge's ends a, b and
     the partner half across each mesh edge (-1 at the border).
@@ -316,7 +343,12 @@ def _unfold(
     for round_ in range(rounds + 1):
         faces = _hybrid(crossing, fanned, halves)
         watch = exposed[faces].any(axis=1)
-        bad = _intersecting_pairs(verts, faces, origin, h, watch) if watch.any() else np.zeros((0, 2), dtype=np.int64)
+        bad = np.zeros((0, 2), dtype=np.int64)
+        if watch.any():  # on the faces near the watched ones, and their vertices only
+            near = _near(verts, faces, watch, origin, h)
+            used, local = np.unique(faces[near], return_inverse=True)
+            pairs = _intersecting_pairs(verts[used], local.reshape(-1, 3), origin, h, watch[near])
+            bad = near[pairs]
         if len(bad) == 0 or round_ == rounds:
             break
         touched = np.unique(faces[bad.ravel()])

@@ -60,7 +60,7 @@ from scipy import sparse
 from ..model import check_bounds
 from ..progress import Progress
 from .folds import _without_folds
-from .grid import _check_memory, _resolution, grid_axes
+from .grid import _check_memory, _resolution, _return_freed_memory, grid_axes
 from .mesh_type import Mesh
 from .octree import Samples, prune, sample_blocks
 from .roots import _bracketed_roots, _f64, _normals, _value_and_grad
@@ -449,38 +449,47 @@ def _contour(
         column.clear()
     v = _Vertices(*whole)
     del columns, whole
+    _return_freed_memory()  # the slabs' copies
     n = len(v.x)
     ncell = np.asarray(cells, dtype=np.int64)
-    # quads oriented outward (toward f <= 0), cut at their crossings (vertices n, n + 1, ...)
-    quads = np.where(v.inside_start[:, None], v.quads, v.quads[:, ::-1])
+    # quads oriented outward (toward f <= 0), in place; cut at their crossings (vertices n, n + 1, ...)
+    quads = v.quads
+    flip = np.flatnonzero(~v.inside_start)
+    quads[flip] = quads[flip, ::-1]
+    del flip
     v = v._replace(quads=None)
-    crossing = np.repeat(np.arange(n, n + len(quads)), 4)
-    halves = np.stack([crossing, quads.ravel(), quads[:, [1, 2, 3, 0]].ravel()], axis=1)
-    del crossing
-    x = _unbias(f, v.x, v.points, halves, v.gradient, v.point_gradient, v.cell, lo, hi, spacing, device)
-    del halves
-    v = v._replace(gradient=None, cell=None)  # not needed any more: memory for what follows
+    x = _unbias(f, v.x, v.points, quads, v.gradient, v.point_gradient, v.cell, lo, hi, spacing, device)
+    v = v._replace(x=None, gradient=None, cell=None)  # not needed any more: memory for what follows
     # where faces of cells that are not confined intersect, the marching-cubes fans of the cells involved
     positive = v.node.astype(np.int64)  # the end of each quad's edge with f > 0 (pairs crossings on a face)
     positive[np.arange(len(quads)), v.axis] += ~v.inside_start
     corner = (positive[:, 0] * (ncell[1] + 1) + positive[:, 1]) * (ncell[2] + 1) + positive[:, 2]
     del positive
-    faces, x, _ = _without_folds(quads, corner, v.points, x, v.mass, v.confined, lo, spacing)
-    used = np.unique(faces)
-    index = np.full(len(x), -1, dtype=np.int64)
-    index[used] = np.arange(len(used))
+    parts_left = (quads, corner, v.points, x, v.mass, v.confined)
+    point_gradient = v.point_gradient
+    del v, quads, corner, x  # what the folds need is in parts_left, handed over
+    faces, x, _ = _without_folds(*parts_left, lo, spacing)
+    del parts_left
+    _return_freed_memory()
+    used = np.zeros(len(x), dtype=bool)  # a mask, not np.unique: no sort of 3 F indices
+    used[faces.ravel()] = True
+    index = np.cumsum(used) - 1
+    np.take(index, faces, out=faces)
+    used = np.flatnonzero(used)
     x = x[used]
-    faces = index[faces]
+    del index
     # grad f: evaluated at the vertices in cells (sorted first), known at the crossings
     in_cell = int(np.searchsorted(used, n))
     gradient = np.empty_like(x)
     gradient[:in_cell] = _value_and_grad(f, x[:in_cell], device)[1]
-    gradient[in_cell:] = v.point_gradient[used[in_cell:] - n]
+    gradient[in_cell:] = point_gradient[used[in_cell:] - n]
+    del point_gradient, used
     return Mesh(x, faces, _normals(gradient, x, faces), gradient=gradient)
 
 
-def _inner(cell: np.ndarray, lo: np.ndarray, hi: np.ndarray, spacing: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Corners (V, 3) of cells (V, 3) of the grid from ``lo`` to ``hi``, less ``INTERIOR`` of a cell on each side."""
+def _inner(cell: np.ndarray, lo: Any, hi: Any, spacing: Any) -> tuple[np.ndarray, np.ndarray]:
+    """Corners (V, 3) of cells (V, 3) of the grid from ``lo`` to ``hi``, less ``INTERIOR`` of a cell on
+    each side (or, given one axis's cell indices (V,) and scalars, that axis's)."""
     cell_lo = lo + cell * spacing
     cell_hi = np.minimum(cell_lo + spacing, hi)
     return cell_lo + INTERIOR * spacing, cell_hi - INTERIOR * spacing
@@ -589,7 +598,7 @@ def _unbias(
     f: Callable,
     x: np.ndarray,
     points: np.ndarray,
-    faces: np.ndarray,
+    quads: np.ndarray,
     gradient: np.ndarray,
     point_gradient: np.ndarray,
     cell: np.ndarray,
@@ -598,54 +607,50 @@ def _unbias(
     spacing: np.ndarray,
     device: Any,
 ) -> np.ndarray:
-    """Smooth vertices (V, 3) moved along the normal so that the triangles' mean distance to f = 0
+    """Smooth vertices (V, 3) moved in place along the normal so that the triangles' mean distance to f = 0
     vanishes (each kept inside its cell: ``cell`` (V, 3) indices into the grid from ``lo`` to ``hi``,
-    cells ``spacing``).  ``faces`` index the vertices, then the crossings ``points`` (fixed: on f = 0).
+    cells ``spacing``).  The triangles are the quads' (Q, 4) halves (crossing, q_i, q_i+1), the
+    crossings ``points`` (Q, 3) fixed on f = 0.
 
     Flat triangles with their corners on a curved surface lie on its concave side: the chord
     error e(x) is a quadratic vanishing at the corners, e = a l1 l2 + b l2 l3 + c l3 l1 in
     barycentric coordinates, whose mean over the triangle, (a + b + c) / 12, is 3/4 of its value
-    at the centroid, (a + b + c) / 9.  A triangle moves by the mean of its corners' shifts, so
-    each of its k movable corners is asked to move by 3/k times 3/4 of the centroid distance
-    f / |grad f| (triangles whose corners are all smooth); a vertex moves by the mean of what its
-    triangles ask.  This removes the bias that would otherwise make the volume err by O(h^2)
-    (the cylinders' holes of the Fig. 1 part) and halves the largest distance to the surface.
+    at the centroid, (a + b + c) / 9.  A triangle moves by the mean of its corners' shifts, and
+    the crossing stays: each of the two vertices is asked to move by 3/2 x 3/4 = 9/8 of the
+    centroid distance f / |grad f| (triangles whose vertices are both smooth); a vertex moves by
+    the mean of what its triangles ask.  This removes the bias that would otherwise make the
+    volume err by O(h^2) (the cylinders' holes of the Fig. 1 part) and halves the largest
+    distance to the surface.  In chunks of quads: the memory of the centroids stays bounded.
     """
     n = len(x)
-    known = np.concatenate([np.isfinite(gradient).all(axis=1), np.ones(len(points), dtype=bool)])
-    smooth = known[faces].all(axis=1)
-    if not smooth.any():
+    known = np.isfinite(gradient).all(axis=1)
+    if not known.any():
         return x
-    length = np.linalg.norm(np.concatenate([gradient, point_gradient]), axis=1)
-    # 1-D gathers per coordinate (fancy (F, 3, 3) ones cost more); int32 indices: half the memory
-    corners = [faces[smooth, k].astype(np.int32) for k in range(3)]
-    del smooth
-    tri_count = len(corners[0])
-    columns = [np.concatenate([x[:, i], points[:, i]]) for i in range(3)]
-    depth = np.empty(tri_count)
-    for start in range(0, tri_count, FINISH_CHUNK):  # chunks: the centroids' memory stays bounded
-        ends = [k[start : start + FINISH_CHUNK] for k in corners]
-        centroid = np.empty((len(ends[0]), 3))
-        for i, column in enumerate(columns):
-            centroid[:, i] = (column[ends[0]] + column[ends[1]] + column[ends[2]]) / 3.0
-        with np.errstate(divide="ignore", invalid="ignore"):
-            mean_length = (length[ends[0]] + length[ends[1]] + length[ends[2]]) / 3.0
-            depth[start : start + FINISH_CHUNK] = _f64(f, centroid, device) / mean_length  # > 0: centroid inside
-    del columns
-    movable = sum((k < n).astype(np.int64) for k in corners)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        ask = np.where(np.isfinite(depth) & (movable > 0), 2.25 * depth / movable, 0.0)
+    length = np.sqrt(np.einsum("ij,ij->i", gradient, gradient))
+    point_length = np.sqrt(np.einsum("ij,ij->i", point_gradient, point_gradient))
     total = np.zeros(n)
     count = np.zeros(n)
-    for k in corners:
-        mine = k < n
-        total += np.bincount(k[mine], weights=ask[mine], minlength=n)
-        count += np.bincount(k[mine], minlength=n)
+    chunk = FINISH_CHUNK // 4  # four triangles per quad
+    for start in range(0, len(quads), chunk):
+        q = quads[start : start + chunk]
+        p, pl = points[start : start + chunk], point_length[start : start + chunk]
+        a = q.T.ravel()  # halves i = 0..3 of every quad, half by half
+        b = q[:, [1, 2, 3, 0]].T.ravel()
+        smooth = known[a] & known[b]
+        a, b = a[smooth], b[smooth]
+        crossing = np.tile(np.arange(len(q)), 4)[smooth]
+        centroid = (p[crossing] + x[a] + x[b]) / 3.0
+        with np.errstate(divide="ignore", invalid="ignore"):
+            depth = _f64(f, centroid, device) / ((pl[crossing] + length[a] + length[b]) / 3.0)  # > 0: inside
+        ask = np.where(np.isfinite(depth), 1.125 * depth, 0.0)
+        ends = np.concatenate([a, b])
+        total += np.bincount(ends, weights=np.concatenate([ask, ask]), minlength=n)
+        count += np.bincount(ends, minlength=n)
     move = np.flatnonzero(count > 0)
-    shift = total[move] / count[move]
     with np.errstate(divide="ignore", invalid="ignore"):
-        unit = gradient[move] / length[move, None]
-    out = x.copy()
-    inner_lo, inner_hi = _inner(cell[move], lo, hi, spacing)
-    out[move] = np.clip(x[move] - shift[:, None] * unit, inner_lo, inner_hi)  # outward: -grad f
-    return out
+        step = total[move] / count[move] / length[move]
+    del total, count
+    for d in range(3):  # x moved in place, axis by axis: no (V, 3) temporaries
+        inner_lo, inner_hi = _inner(cell[move, d], lo[d], hi[d], spacing[d])
+        x[move, d] = np.clip(x[move, d] - step * gradient[move, d], inner_lo, inner_hi)  # outward: -grad f
+    return x

@@ -322,33 +322,51 @@ def _unfold(
     ``crossing_points`` (Q, 3) the roots on the quads' edges (appended to the vertices);
     ``x``, ``mass`` (V, 3) strictly inside their cells; ``confined`` (V,) whether a vertex's cell
     is proved free of folds (``dual_contouring._confined``): only pairs with a face holding a vertex
-    of another cell are searched.  The ends of a mesh edge in four quads start fanned (their fans
+    of another cell are searched, and only the quads near those faces can change (the others'
+    halves come out as they are).  The ends of a mesh edge in four quads start fanned (their fans
     hold no such edge: the mesh becomes manifold there).
     """
-    n = len(x)
-    crossing = n + np.arange(len(quads))
-    halves = _halves(quads, corner)
+    n, nq = len(x), len(quads)
+    verts = np.concatenate([x, crossing_points])
+    plain = np.empty((nq, 4, 3), dtype=np.int64)  # the halves (crossing, q_i, q_i+1) of every quad
+    plain[:, :, 0] = (n + np.arange(nq))[:, None]
+    plain[:, :, 1] = quads
+    plain[:, :3, 2] = quads[:, 1:]
+    plain[:, 3, 2] = quads[:, 0]
+    plain = plain.reshape(-1, 3)
+    if confined.all():
+        return plain, verts, 0
+    exposed = np.concatenate([~confined, np.zeros(nq, dtype=bool)])
+    # the region: quads with a vertex of a face that may meet a watched face (a watched face's
+    # partners, the vertices that may be fanned, and the halves their fans cut all lie in it)
+    near = _near(verts, plain, exposed[plain].any(axis=1), origin, h)
+    candidate = np.zeros(n + nq, dtype=bool)
+    candidate[plain[near].ravel()] = True
+    del near
+    inside = candidate[:n][quads].any(axis=1)
+    outside = plain.reshape(nq, 4, 3)[~inside].reshape(-1, 3)
+    del plain, candidate
+    region = np.flatnonzero(inside)
+    crossing = n + region
+    halves = _halves(quads[region], corner[region])
     fanned = np.zeros(n, dtype=bool)
     a, b, partner = halves
     edge_key = np.minimum(a, b) * n + np.maximum(a, b)
     _, inverse, count = np.unique(edge_key, return_inverse=True, return_counts=True)
     crowded = count[inverse] > 2
-    del edge_key, inverse, count  # 4 Q entries each, not needed through the rounds
+    del edge_key, inverse, count
     fanned[a[crowded]] = fanned[b[crowded]] = True
     del crowded
-    verts = np.concatenate([x, crossing_points])
-    verts[fanned[:n].nonzero()[0]] = mass[fanned]
-    exposed = np.concatenate([~confined, np.zeros(len(quads), dtype=bool)])
+    verts[fanned.nonzero()[0]] = mass[fanned]
     bad = np.zeros((0, 2), dtype=np.int64)
     for round_ in range(rounds + 1):
         faces = _hybrid(crossing, fanned, halves)
         watch = exposed[faces].any(axis=1)
-        bad = np.zeros((0, 2), dtype=np.int64)
-        if watch.any():  # on the faces near the watched ones, and their vertices only
-            near = _near(verts, faces, watch, origin, h)
-            used, local = np.unique(faces[near], return_inverse=True)
-            pairs = _intersecting_pairs(verts[used], local.reshape(-1, 3), origin, h, watch[near])
-            bad = near[pairs]
+        if not watch.any():
+            break
+        near = _near(verts, faces, watch, origin, h)  # on the faces near the watched ones, and their vertices only
+        used, local = np.unique(faces[near], return_inverse=True)
+        bad = near[_intersecting_pairs(verts[used], local.reshape(-1, 3), origin, h, watch[near])]
         if len(bad) == 0 or round_ == rounds:
             break
         touched = np.unique(faces[bad.ravel()])
@@ -358,7 +376,7 @@ def _unfold(
             break  # only fans left among the intersecting faces
         fanned[new] = True
         verts[new] = mass[new]
-    return faces, verts, len(bad)
+    return np.concatenate([outside, faces]), verts, len(bad)
 
 
 def _without_folds(

@@ -117,6 +117,29 @@ def _check_memory(resolution: tuple[int, ...], dtype: torch.dtype) -> None:
         )
 
 
+def _return_freed_memory() -> None:
+    """Hand the C heap's free pages back to the system (glibc's ``malloc_trim``; nothing elsewhere).
+
+    Arrays of a few MB, freed between the meshers' passes, stay in the heap as free pages that
+    still count as resident: the next pass's arrays then come on top of them, and the peak grows
+    with what was already freed.
+    """
+    trim = _malloc_trim()
+    if trim is not None:
+        trim(0)
+
+
+@functools.lru_cache(maxsize=1)
+def _malloc_trim() -> Callable | None:
+    import ctypes
+    import ctypes.util
+
+    try:
+        return ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6").malloc_trim
+    except (OSError, AttributeError):
+        return None
+
+
 def _map(fn: Callable, items: list, device: torch.device) -> list:
     """``[fn(item) for item in items]``: chunks one after the other.
 

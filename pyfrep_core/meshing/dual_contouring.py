@@ -474,7 +474,7 @@ def _contour(
     used = np.zeros(len(x), dtype=bool)  # a mask, not np.unique: no sort of 3 F indices
     used[faces.ravel()] = True
     index = np.cumsum(used) - 1
-    np.take(index, faces, out=faces)
+    np.take(index, faces, out=faces, mode="clip")  # in place ("raise" would buffer a copy); every index is valid
     used = np.flatnonzero(used)
     x = x[used]
     del index
@@ -644,8 +644,12 @@ def _unbias(
             depth = _f64(f, centroid, device) / ((pl[crossing] + length[a] + length[b]) / 3.0)  # > 0: inside
         ask = np.where(np.isfinite(depth), 1.125 * depth, 0.0)
         ends = np.concatenate([a, b])
-        total += np.bincount(ends, weights=np.concatenate([ask, ask]), minlength=n)
-        count += np.bincount(ends, minlength=n)
+        if len(ends) == 0:
+            continue
+        first, last = int(ends.min()), int(ends.max()) + 1  # the chunk's vertices (quads come slab by slab)
+        ends -= first
+        total[first:last] += np.bincount(ends, weights=np.concatenate([ask, ask]), minlength=last - first)
+        count[first:last] += np.bincount(ends, minlength=last - first)
     move = np.flatnonzero(count > 0)
     with np.errstate(divide="ignore", invalid="ignore"):
         step = total[move] / count[move] / length[move]

@@ -18,7 +18,10 @@ timed with one torch thread; the load average is printed with the figures.
 
 Dual contouring (``polygonize(method="dc")``, issue 13): the Fig. 1 part at 128^3- and
 256^3-equivalent voxel size (and 512^3, 1024^3 unless PYFREP_QUICK), a closed gyroid block and
-the paper's microstructure, each against marching cubes at the same voxel size: seconds,
+the paper's microstructure, and ``fig1-minmax`` (the same part written with min and distances,
+libfive's own field, so that both meshers mesh one function), each against marching cubes at
+the same voxel size (``dc+compiled``: the model through ``compiled``, kernels compiled in the
+warm-up): seconds,
 triangles, volume error (closed forms: the Fig. 1 part; the gyroid solid over [-1, 1]^3 is half
 the cube, 4, since f(-x) = -f(x)), pairs of self-intersecting faces (pymeshlab's candidates
 confirmed by VTK's collision filter), and peak memory
@@ -182,8 +185,22 @@ def gyroid_block(x: torch.Tensor) -> torch.Tensor:
     return intersection(gyroid(x), block(x, vertex=(-1.0, -1.0, -1.0), dx=2.0, dy=2.0, dz=2.0))
 
 
+@model()
+def fig1_minmax(x: torch.Tensor, r: float = 0.5) -> torch.Tensor:
+    """The Fig. 1 part as libfive's users write it, in torch: min for intersection, Euclidean
+    distances to sphere and cylinders, the max-norm for the cube (the same solid, another field)."""
+    a, b, c = x[:, 0], x[:, 1], x[:, 2]
+    out = torch.minimum(
+        1.0 - torch.sqrt(a * a + b * b + c * c), 0.75 - torch.maximum(torch.maximum(a.abs(), b.abs()), c.abs())
+    )
+    for u, v in ((b, c), (a, c), (a, b)):
+        out = torch.minimum(out, torch.sqrt(u * u + v * v) - r)
+    return out
+
+
 CASES = {
     "fig1": (lambda: fig1_part, BOUNDS, EXACT_VOLUME),
+    "fig1-minmax": (lambda: fig1_minmax, BOUNDS, EXACT_VOLUME),
     "gyroid": (lambda: gyroid_block, BOUNDS, 4.0),
     "microstructure": (lambda: __import__("pyfrep_core.models", fromlist=["x"]).microstructure, None, None),
 }
@@ -457,6 +474,7 @@ def _five_gyroid_native(x, y, z):
 # case -> variant -> tree builder; "field" trees are negated when meshed, "native" ones are not
 LIBFIVE_MODELS = {
     "fig1": {"field": _five_fig1, "native": _five_fig1_native},
+    "fig1-minmax": {"field": lambda x, y, z: -_five_fig1_native(x, y, z)},  # negated back: libfive's own field
     "gyroid": {"field": _five_gyroid_block, "native": _five_gyroid_native},
     "microstructure": {"field": _five_microstructure},  # the graded blend has no min/max form
 }
@@ -585,7 +603,8 @@ def dual_contouring_table(runs: int) -> None:
         f"{', '.join(f'{x:.2f}' for x in os.getloadavg())})"
     )
     peer = libfive_note()
-    rows = [("fig1", 128), ("fig1", 256), ("gyroid", 128), ("microstructure", 128)]
+    rows = [("fig1", 128), ("fig1", 256), ("fig1-minmax", 128), ("fig1-minmax", 256), ("gyroid", 128)]
+    rows += [("microstructure", 128)]
     if not QUICK:
         rows += [("fig1", 512), ("fig1", 1024)]
     for case, n in rows:

@@ -622,7 +622,7 @@ def dual_contouring_table(runs: int) -> None:
             line.append(
                 f"{method} {seconds:7.3f} s {faces:9d} triangles {err} self-intersecting pairs {flagged} {mib:6.0f} MiB"
             )
-        ratio = f"  mc / dc = {figures['mc'] / figures['dc']:.2f}x" if len(figures) == 2 else ""
+        ratio = f"  mc / dc = {figures['mc'] / figures['dc']:.2f}x" if {"mc", "dc"} <= figures.keys() else ""
         print(f"  {case:>14} {n:4d}^3  " + "\n                         ".join(line) + ratio)
         if peer and n <= 512:
             print("                         " + libfive_row(case, n, runs if n <= 256 else 1, figures))

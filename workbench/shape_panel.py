@@ -421,12 +421,12 @@ class ShapePanel(widgets.VBox):
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             # a preview keeps marching cubes' vertices (it is replaced a moment later); the followups
-            # (marching cubes at full resolution, then dual contouring of the eager model where it has
-            # interval bounds: torch.compile cannot trace interval arithmetic) stop when a newer move
-            # arrives (the worker then drops them); moves meshed inline stay on marching cubes
+            # (marching cubes at full resolution, then dual contouring where the model has interval
+            # bounds: its boxes go through the eager model, its points through the same kernels) stop
+            # when a newer move arrives (the worker then drops them); moves meshed inline stay on
+            # marching cubes
             dc = bool(job.get("sharp"))
-            fused = fused and not dc
-            f = functools.partial(job["model"] if dc else model, **params)  # polygonize reads the chunk size
+            f = functools.partial(model, **params)  # polygonize reads the chunk size
             stop = self.worker.superseded if job.get("followup") else None
             mesh = polygonize(
                 f,
@@ -469,7 +469,7 @@ class ShapePanel(widgets.VBox):
         how = "compiled" if result["compiled"] else "eager"
         self._warm_up_soon()  # after the first mesh is built, so that it does not wait for the compiler
         model = job["model"]
-        evaluated_eagerly = not result["compiled"] and not result.get("dc")  # dual contouring is eager by design
+        evaluated_eagerly = not result["compiled"]
         if evaluated_eagerly and id(model) in self._warming:
             extra += "; compiling the model's kernels in the background"
         elif evaluated_eagerly and model.__name__ in self.warm_up_errors:

@@ -79,6 +79,7 @@ def median_seconds(fn, runs: int) -> tuple[float, object]:
     out = fn()  # warm-up
     times = []
     for _ in range(runs):
+        out = None  # the previous result freed first: the peak memory is one call's
         t0 = time.perf_counter()
         out = fn()
         times.append(time.perf_counter() - t0)

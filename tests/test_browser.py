@@ -142,7 +142,7 @@ def test_slider_remeshes_and_the_view_changes(page):
     assert changed > 0.005, f"only {changed:.2%} of the view's pixels changed"
 
     # the model's kernels compile in the kernel's background after the first mesh; then moves run compiled
-    # (marching cubes at full resolution says so, until dual contouring's eager mesh replaces it)
+    # (marching cubes at full resolution says so, and dual contouring's mesh that replaces it)
     from playwright.sync_api import TimeoutError as PlaywrightTimeout
 
     deadline = time.monotonic() + 240

@@ -74,9 +74,12 @@ def polygonize(
         With ``"dc"``: the step at which an edge's root is accepted (None: 1e-7 cells).
     method : ``"mc"`` marching cubes (the default); ``"dc"`` octree dual contouring at the same
         voxel size (``resolution`` samples per axis; cells the interval bounds prove free of
-        surface are never sampled, sharp edges and corners are reproduced, vertices lie inside
-        the cells rather than on f = 0 except on smooth patches; ``project`` and ``sparse`` do
-        not apply); ``"auto"``: ``"dc"`` when f has an interval extension, else ``"mc"``.
+        surface are never sampled, sharp edges and corners are reproduced, one vertex per cell
+        and surface component, inside its cell (on f = 0 on smooth patches), and one on f = 0 at
+        each crossing edge's root, which cuts that edge's quad into four triangles: about twice
+        marching cubes' triangles; no two faces without a common vertex intersect (proved in
+        cells crossed by one sheet, searched and mended in the others); ``project`` and
+        ``sparse`` do not apply); ``"auto"``: ``"dc"`` when f has an interval extension, else ``"mc"``.
     callback, stop, progress : see :mod:`pyfrep_core.progress`: events (stage "polygonize", one
         per chunk of samples; returning True stops), a stop flag (``is_set()``), and a tqdm bar
         shown once the sampling has run 1 s.  Stopped, an empty mesh comes back (no warning).

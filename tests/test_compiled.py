@@ -581,3 +581,25 @@ def test_a_kept_graph_or_a_plain_compiled_model_differentiates_eagerly(fused_rin
     assert torch.isfinite(dh).all() and dh.abs().max() > 0
     with pytest.raises(ValueError, match="second_order"):
         warm_up(compiled(ring), dtypes=(), gradients=(), second_order=(torch.float64,))
+
+
+def test_interval_bounds_of_a_compiled_model_are_the_eager_ones_and_leave_its_kernel_in_use(fast):
+    # boxes (interval arithmetic, a tensor subclass) go through the eager model; before, the kernel
+    # was tried on them, failed, and the model stayed eager for good (dual contouring ran eagerly)
+    from pyfrep_core.interval import bounds
+
+    f = fast["fig1_part"]
+    lo = in_bounds(f, 200, seed=11)
+    hi = lo + 0.1
+    flo, fhi = bounds(f, lo, hi, r=0.35)
+    elo, ehi = bounds(fig1_part, lo, hi, r=0.35)
+    np.testing.assert_array_equal(flo, elo)
+    np.testing.assert_array_equal(fhi, ehi)
+    assert f.failure is None
+    x = in_bounds(f, 1000, seed=12)
+    with kernel_calls(f) as sizes:
+        values = f(x, r=0.35)
+    assert sizes == [1000]
+    np.testing.assert_allclose(values, fig1_part(x, r=0.35), rtol=1e-12, atol=1e-12)
+    m = polygonize(f, ((-1.1,) * 3, (1.1,) * 3), 24, method="dc", progress=False)
+    assert f.failure is None and m.n_faces > 0

@@ -213,6 +213,24 @@ def test_the_fold_search_looks_only_at_cells_not_proved_free_of_folds(shape, mon
         assert all(watched == 0 for watched, _ in searched)
 
 
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_random_fields_full_of_saddles_stay_closed_manifolds_without_self_intersections(seed):
+    # sums of random plane waves, cut by a ball: saddles put four crossings on many cell faces,
+    # and thin necks give cells of two components (the search's part)
+    rng = np.random.default_rng(seed)
+    k = torch.as_tensor(rng.normal(size=(12, 3)) * 6.0)
+    phase = torch.as_tensor(rng.uniform(0.0, 2 * np.pi, 12))
+
+    def waves(x):
+        field = 0.3 * torch.cos(x @ k.T.to(x.dtype) + phase.to(x.dtype)).sum(dim=1) + 0.1
+        return intersection(field, sphere(x, r=0.9))
+
+    m = polygonize(waves, BOX, 40, method="dc", progress=False)
+    assert m.n_faces > 1000
+    assert_closed_manifold(m)
+    assert len(self_intersecting_pairs(m)) == 0
+
+
 def test_the_self_intersection_check_finds_an_intersection():
     # two overlapping balls in one mesh: the check must report pairs
     m = polygonize(lambda x: sphere(x, r=0.8), BOX, 24, method="dc")

@@ -148,31 +148,24 @@ _COMPONENT, _N_COMPONENTS = _components()
 
 
 def _confined() -> np.ndarray:
-    """(256,) whether a sign configuration's cell is proved free of folds: one component and no face
-    with four crossings.
+    """(256,) whether a sign configuration's cell is proved free of folds: one surface component.
 
     Each quad is cut at its edge's crossing into four triangles (crossing, v_i, v_i+1); the segment
     from v_i to v_i+1 (in two cells sharing a face) meets that face at a point q inside it.  So
     the triangles' parts in a cell with one vertex v make the cone from v over a closed polygon on
     the cell's boundary: on each face a path crossing - q - crossing (or the straight segment
-    crossing - crossing where a fan cuts the diamond).  With one component and two crossings per
-    face that polygon is simple, and the cone from a point strictly inside a convex cell over a
+    crossing - crossing where a fan cuts the diamond).  On a face with two crossings that path is
+    simple.  On a face with four, between two cells of one component each, the edge joining their
+    vertices lies in four quads: both start fanned, and their paths there are marching cubes' two
+    segments, which keep the corners with f > 0 apart and do not cross.  (Where the other cell has
+    two components, the faces over the two paths hold its vertices, so the search below sees them.)
+    The polygon is then simple, and the cone from a point strictly inside a convex cell over a
     simple curve on its boundary does not meet itself (each ray from v leaves the cell once).
     Neighbouring cells share only their common paths on their common faces.  Faces can therefore
-    intersect only inside cells that are not confined (two or more components, or a face with four
-    crossings): the fold search looks there only.
+    intersect only inside cells of two or more components: the fold search looks at faces with a
+    vertex there only.
     """
-    faces = []
-    for a in range(3):
-        for side in (0, 1):
-            faces.append([e for e in range(12) if all(_CORNER[c][a] == side for c in _EDGE_CORNERS[e])])
-    out = np.zeros(256, dtype=bool)
-    for cfg in range(256):
-        inside = [(cfg >> c) & 1 for c in range(8)]
-        crossing = [inside[_EDGE_CORNERS[e][0]] != inside[_EDGE_CORNERS[e][1]] for e in range(12)]
-        four = any(sum(crossing[e] for e in on) == 4 for on in faces)
-        out[cfg] = _N_COMPONENTS[cfg] == 1 and not four
-    return out
+    return _N_COMPONENTS == 1
 
 
 _CONFINED = _confined()

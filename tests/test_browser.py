@@ -367,6 +367,8 @@ def test_dragging_the_surface_in_the_view_moves_the_sliders(page):
     sliders = page.locator(".widget-slider:visible .widget-readout")
     before = [sliders.nth(i).inner_text() for i in range(sliders.count())]
     page.get_by_role("button", name="drag the surface").click()
+    # the kernel has the mode when its status says so (a drag it sees before would turn the view)
+    page.wait_for_function("document.body.innerText.includes('drag the surface is on')", timeout=60_000)
     box = view_locator(page).bounding_box()
     x, y = box["x"] + 0.5 * box["width"], box["y"] + 0.5 * box["height"]  # the pawn's body
     page.mouse.move(x, y)
@@ -377,7 +379,7 @@ def test_dragging_the_surface_in_the_view_moves_the_sliders(page):
     page.mouse.up()
     status = page.locator(".widget-html-content:visible", has_text=re.compile(r"^push-pull: ")).first
     deadline = time.monotonic() + 120
-    while "picked" in status.inner_text() or "click the surface" in status.inner_text():
+    while any(waiting in status.inner_text() for waiting in ("picked", "click the surface", "is on")):
         assert time.monotonic() < deadline, status.inner_text()
         time.sleep(0.5)
     page.screenshot(path=str(ARTIFACTS / "push_pull_drag.png"))

@@ -85,13 +85,10 @@ class PushPullControls:
             layout=widgets.Layout(width="150px"),
         )
         self.status = widgets.HTML(layout=widgets.Layout(width="340px"))
-        self._say(
-            "click the surface to pick a point, then drag the pull slider or type it; or turn on "
-            "<i>drag the surface</i> and drag the point itself (the parameters that move it there "
-            "are solved for, within their ranges)"
-        )
+        self._instruct()
         self.widget = widgets.VBox([self.status, widgets.HBox([self.drag]), self.pull])
-        self._instruction = self.status.value
+        # the status says which mode the kernel is in (a drag started before it knows would turn the view)
+        self.drag.observe(lambda _: self._instruct() if self.point is None else None, names="value")
         # Reset or another model: the picked point and the last pull no longer describe the view
         panel.reset_button.on_click(lambda _: self.forget())
         panel.choice.observe(lambda _: self.forget(), names="value")
@@ -105,6 +102,21 @@ class PushPullControls:
         except Exception as err:  # noqa: BLE001  (no interactor: pick() still works from code)
             self.picking = False
             self._say(f"clicking not available ({html.escape(str(err))}): pick() from code")
+
+    def _instruct(self) -> None:
+        """The status line's instruction for the mode the toggle is in (no point picked)."""
+        if self.drag.value:
+            self._say(
+                "<i>drag the surface</i> is on: press on the surface and drag it along its normal (the "
+                "parameters that move it there are solved for, within their ranges); press beside the "
+                "shape to turn the view"
+            )
+        else:
+            self._say(
+                "click the surface to pick a point, then drag the pull slider or type it; or turn on "
+                "<i>drag the surface</i> and drag the point itself (the parameters that move it there "
+                "are solved for, within their ranges)"
+            )
 
     def _say(self, text: str) -> None:
         """The status line (its own line height: the widget's is one control high)."""
@@ -120,7 +132,7 @@ class PushPullControls:
             self.pull.disabled = True
         finally:
             self._quiet = False
-        self.status.value = self._instruction
+        self._instruct()
         if self.marker_actor is not None:
             self.marker_actor.visibility = False
             self.panel.view.render()

@@ -55,12 +55,12 @@ from typing import Any, NamedTuple
 
 import numpy as np
 import torch
-from scipy import sparse
 
 from ..model import check_bounds
 from ..progress import Progress
 from .folds import _without_folds
 from .grid import _check_memory, _resolution, _return_freed_memory, grid_axes
+from .loops import _add_requests, _edge_vertices, _move_inside, _qef_sums, _triangle_centroids
 from .mesh_type import Mesh
 from .octree import Samples, prune, sample_blocks
 from .roots import _bracketed_roots, _f64, _normals, _value_and_grad
@@ -350,40 +350,13 @@ def _slab(
     keys = np.concatenate([carry[0], s.cell_key])
     config = np.concatenate([carry[2], s.config])
     base = np.concatenate([carry[1], first_vertex[:-1] + offset])  # global first vertex of each cell
-    # the up to four cells around each crossing edge, and the vertex of the edge's component there;
-    # per axis (the edges come sorted by axis, then node: the keys looked up come in order, which
-    # keeps the binary searches in cache)
+    # the up to four cells around each crossing edge, and the vertex of the edge's component there
     a = s.edge_axis
-    vert = np.full((len(a), 4), -1, dtype=np.int64)
-    bounds = np.searchsorted(a, np.arange(4))
-    for axis in range(3):
-        rows = slice(bounds[axis], bounds[axis + 1])
-        node = [s.edge_node[rows, d] for d in range(3)]
-        b, c = (axis + 1) % 3, (axis + 2) % 3
-        for q, (db, dc) in enumerate(((1, 1), (0, 1), (0, 0), (1, 0))):  # counter-clockwise about +axis
-            cell = list(node)
-            cell[b], cell[c] = node[b] - db, node[c] - dc
-            inside = (
-                (cell[b] >= 0) & (cell[c] >= 0) & (cell[0] < ncell[0]) & (cell[1] < ncell[1]) & (cell[2] < ncell[2])
-            )
-            key = (cell[0] * ncell[1] + cell[1]) * ncell[2] + cell[2]
-            pos = np.minimum(np.searchsorted(keys, key), len(keys) - 1)
-            comp = _COMPONENT[config[pos], 4 * axis + db + 2 * dc]
-            found = np.flatnonzero(inside & (keys[pos] == key) & (comp >= 0))
-            vert[bounds[axis] + found, q] = base[pos[found]] + comp[found]
-    # QEF per vertex of the slab from its edges: A^T A (6 entries), A^T b, mass point; the per-edge
-    # products (E, 13) summed into the vertices of their up to four cells by one sparse incidence product
-    d = np.einsum("ij,ij->i", normal, points)
+    vert = _edge_vertices(keys, config, base, s.edge_node, a, ncell, _COMPONENT)
+    # QEF per vertex of the slab from its edges: A^T A (6 entries), A^T b, mass point (the carried
+    # layer's QEFs are done)
+    sums = _qef_sums(vert, normal, points, offset, n_vert)
     pairs = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
-    terms = np.empty((len(d), 13))
-    for k, (i, j) in enumerate(pairs):
-        np.multiply(normal[:, i], normal[:, j], out=terms[:, k])
-    np.multiply(normal, d[:, None], out=terms[:, 6:9])
-    terms[:, 9:12] = points
-    terms[:, 12] = 1.0
-    local_vert = np.where(vert >= offset, vert - offset, -1)  # the carried layer's QEFs are done
-    sums = _incidence(local_vert, n_vert) @ terms
-    del terms, local_vert
     ata = np.empty((n_vert, 3, 3))
     for k, (i, j) in enumerate(pairs):
         ata[:, i, j] = ata[:, j, i] = sums[:, k]
@@ -486,16 +459,6 @@ def _inner(cell: np.ndarray, lo: Any, hi: Any, spacing: Any) -> tuple[np.ndarray
     cell_lo = lo + cell * spacing
     cell_hi = np.minimum(cell_lo + spacing, hi)
     return cell_lo + INTERIOR * spacing, cell_hi - INTERIOR * spacing
-
-
-def _incidence(vert: np.ndarray, n_vert: int) -> sparse.csc_matrix:
-    """(V, E) matrix with a 1 where edge e's column lists vertex v (``vert`` (E, 4), -1: none): built
-    column by column without sorting."""
-    has = vert >= 0
-    indptr = np.zeros(len(vert) + 1, dtype=np.int64)
-    np.cumsum(has.sum(axis=1), out=indptr[1:])
-    rows = vert[has]
-    return sparse.csc_matrix((np.ones(len(rows)), rows, indptr), shape=(n_vert, len(vert)))
 
 
 def _solve_qef(
@@ -615,39 +578,24 @@ def _unbias(
     volume err by O(h^2) (the cylinders' holes of the Fig. 1 part) and halves the largest
     distance to the surface.  In chunks of quads: the memory of the centroids stays bounded.
     """
-    n = len(x)
     known = np.isfinite(gradient).all(axis=1)
     if not known.any():
         return x
-    length = np.sqrt(np.einsum("ij,ij->i", gradient, gradient))
+    length = np.where(known, np.sqrt(np.einsum("ij,ij->i", gradient, gradient)), np.nan)  # NaN: not smooth
     point_length = np.sqrt(np.einsum("ij,ij->i", point_gradient, point_gradient))
-    total = np.zeros(n)
-    count = np.zeros(n)
+    total = np.zeros(len(x))
+    count = np.zeros(len(x))
     chunk = FINISH_CHUNK // 4  # four triangles per quad
     for start in range(0, len(quads), chunk):
-        q = quads[start : start + chunk]
-        p, pl = points[start : start + chunk], point_length[start : start + chunk]
-        a = q.T.ravel()  # halves i = 0..3 of every quad, half by half
-        b = q[:, [1, 2, 3, 0]].T.ravel()
-        smooth = known[a] & known[b]
-        a, b = a[smooth], b[smooth]
-        crossing = np.tile(np.arange(len(q)), 4)[smooth]
-        centroid = (p[crossing] + x[a] + x[b]) / 3.0
+        rows = slice(start, start + chunk)
+        centroid, first, second, mean_length = _triangle_centroids(
+            quads[rows], points[rows], point_length[rows], x, length
+        )
         with np.errstate(divide="ignore", invalid="ignore"):
-            depth = _f64(f, centroid, device) / ((pl[crossing] + length[a] + length[b]) / 3.0)  # > 0: inside
-        ask = np.where(np.isfinite(depth), 1.125 * depth, 0.0)
-        ends = np.concatenate([a, b])
-        if len(ends) == 0:
-            continue
-        first, last = int(ends.min()), int(ends.max()) + 1  # the chunk's vertices (quads come slab by slab)
-        ends -= first
-        total[first:last] += np.bincount(ends, weights=np.concatenate([ask, ask]), minlength=last - first)
-        count[first:last] += np.bincount(ends, minlength=last - first)
-    move = np.flatnonzero(count > 0)
+            depth = _f64(f, centroid, device) / mean_length  # > 0: inside
+        _add_requests(first, second, np.where(np.isfinite(depth), 1.125 * depth, 0.0), total, count)
     with np.errstate(divide="ignore", invalid="ignore"):
-        step = total[move] / count[move] / length[move]
+        step = np.where(count > 0, total / count / length, 0.0)
     del total, count
-    for d in range(3):  # x moved in place, axis by axis: no (V, 3) temporaries
-        inner_lo, inner_hi = _inner(cell[move, d], lo[d], hi[d], spacing[d])
-        x[move, d] = np.clip(x[move, d] - step * gradient[move, d], inner_lo, inner_hi)  # outward: -grad f
+    _move_inside(x, gradient, step, cell, lo, hi, spacing, INTERIOR)  # outward: -grad f
     return x

@@ -31,6 +31,7 @@ import torch
 
 from ..interval import IntervalUnsupported, bounds
 from .grid import CHUNK_POINTS, _call, _chunk_points
+from .loops import _classify_blocks
 
 __all__ = ["Octree", "Samples", "prune", "sample_blocks"]
 
@@ -168,7 +169,6 @@ def sample_blocks(
     grid = [torch.as_tensor(a, dtype=dtype, device=device) for a in axes]
     local = np.arange(s + 1)
     per_chunk = max(1, _chunk_points(f, CHUNK_POINTS) // (s + 1) ** 3)
-    corner = [(c & 1, c >> 1 & 1, c >> 2 & 1) for c in range(8)]
     edges_key, edges_f0, edges_f1, cells_key, cells_cfg = [], [], [], [], []
     n_nodes = int(np.prod(shape))
     n_points, vmin, vmax = 0, math.inf, -math.inf
@@ -183,40 +183,12 @@ def sample_blocks(
         vals, lo, hi = _call(f, pts)
         n_points += vals.numel()
         vmin, vmax = min(vmin, lo), max(vmax, hi)
-        v = vals.cpu().numpy()
-        inside = v > 0
-        # global node index of each local node (unclipped, to drop the padding past the grid)
-        gx, gy, gz = (part[:, d, None] * s + local for d in range(3))
-        # mixed cells
-        config = np.zeros((k, s, s, s), dtype=np.uint8)
-        for c, (dx, dy, dz) in enumerate(corner):
-            config |= inside[:, dx : dx + s, dy : dy + s, dz : dz + s].astype(np.uint8) << c
-        real = (
-            (gx[:, :s] < ncell[0])[:, :, None, None]
-            & (gy[:, :s] < ncell[1])[:, None, :, None]
-            & (gz[:, :s] < ncell[2])[:, None, None, :]
-        )
-        mixed = np.nonzero(real & (config != 0) & (config != 255))
-        b, i, j, l3 = mixed
-        cells_key.append(((gx[b, i] * ncell[1] + gy[b, j]) * ncell[2] + gz[b, l3]).astype(np.int64))
-        cells_cfg.append(config[mixed])
-        # crossing edges, per axis: nodes l and l + 1 along it in different classes
-        ok = [g <= shape[d] - 1 for d, g in enumerate((gx, gy, gz))]
-        for a in range(3):
-            lo_sl = [slice(None)] * 4
-            hi_sl = [slice(None)] * 4
-            lo_sl[a + 1], hi_sl[a + 1] = slice(0, s), slice(1, s + 1)
-            cross = inside[tuple(lo_sl)] != inside[tuple(hi_sl)]
-            valid = [ok[d] if d != a else (g[:, :s] < shape[d] - 1) for d, g in enumerate((gx, gy, gz))]
-            cross &= valid[0][:, :, None, None] & valid[1][:, None, :, None] & valid[2][:, None, None, :]
-            b, i, j, l3 = np.nonzero(cross)
-            node = [gx[b, i], gy[b, j], gz[b, l3]]
-            flat = (node[0] * shape[1] + node[1]) * shape[2] + node[2]
-            edges_key.append(flat + a * n_nodes)
-            end = [i, j, l3]
-            end[a] = end[a] + 1
-            edges_f0.append(v[b, i, j, l3].astype(np.float64))
-            edges_f1.append(v[b, end[0], end[1], end[2]].astype(np.float64))
+        keys, config, edges, f0, f1 = _classify_blocks(vals.cpu().numpy(), part, s, shape)
+        cells_key.append(keys)
+        cells_cfg.append(config)
+        edges_key.append(edges)
+        edges_f0.append(f0)
+        edges_f1.append(f1)
         if progress is not None and progress.update(first_step + step):
             return None
     key = np.concatenate(edges_key) if edges_key else np.zeros(0, dtype=np.int64)

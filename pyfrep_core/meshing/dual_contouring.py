@@ -60,7 +60,16 @@ from ..model import check_bounds
 from ..progress import Progress
 from .folds import _without_folds
 from .grid import _check_memory, _resolution, _return_freed_memory, grid_axes
-from .loops import _add_requests, _edge_vertices, _move_inside, _qef_sums, _triangle_centroids
+from .loops import (
+    _add_requests,
+    _compact,
+    _edge_vertices,
+    _move_inside,
+    _newton_into_cells,
+    _qef_sums,
+    _solve_qefs,
+    _triangle_centroids,
+)
 from .mesh_type import Mesh
 from .octree import Samples, prune, sample_blocks
 from .roots import _bracketed_roots, _f64, _normals, _value_and_grad
@@ -356,26 +365,14 @@ def _slab(
     # QEF per vertex of the slab from its edges: A^T A (6 entries), A^T b, mass point (the carried
     # layer's QEFs are done)
     sums = _qef_sums(vert, normal, points, offset, n_vert)
-    pairs = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
-    ata = np.empty((n_vert, 3, 3))
-    for k, (i, j) in enumerate(pairs):
-        ata[:, i, j] = ata[:, j, i] = sums[:, k]
-    atb = sums[:, 6:9].copy()
-    mass = sums[:, 9:12].copy()
-    count = sums[:, 12].copy()
-    del sums
-    mass /= np.maximum(count, 1.0)[:, None]
-    # the vertices' cells, less a margin: every vertex strictly inside its cell (see _confined)
-    vcell = np.repeat(s.cell, n_comp, axis=0)
-    cell_lo, cell_hi = _inner(vcell, lo, hi, spacing)
-    np.clip(mass, cell_lo, cell_hi, out=mass)
-    x, rank = _solve_qef(ata, atb, mass, cell_lo, cell_hi)
-    del ata, atb
-    # a cell crossed by two or more sheets (a feature thinner than the cell): their QEF points, each
+    # the vertices' cells, less a margin: every vertex strictly inside its cell (see _confined); a
+    # cell crossed by two or more sheets (a feature thinner than the cell): their QEF points, each
     # free in the whole cell, can cross the other sheet; their mass points stay between their own edges
+    vcell = np.repeat(s.cell, n_comp, axis=0)
     shared = np.repeat(n_comp > 1, n_comp)
-    x[shared], rank[shared] = mass[shared], 0
-    x, smooth_gradient = _project_smooth(f, x, rank, cell_lo, cell_hi, device, spacing)
+    x, mass, rank = _solve_qefs(sums, vcell, shared, lo, hi, spacing, INTERIOR, SINGULAR_CUTOFF)
+    del sums
+    x, smooth_gradient = _project_smooth(f, x, rank, vcell, lo, hi, spacing, device)
     # quads of the edges starting in the slab whose four cells lie in the grid
     own = (vert >= 0).all(axis=1) & (s.edge_node[:, 0] >= first) & (s.edge_node[:, 0] < end)
     part = _Vertices(
@@ -437,13 +434,8 @@ def _contour(
     faces, x, _ = _without_folds(*parts_left, lo, spacing)
     del parts_left
     _return_freed_memory()
-    used = np.zeros(len(x), dtype=bool)  # a mask, not np.unique: no sort of 3 F indices
-    used[faces.ravel()] = True
-    index = np.cumsum(used) - 1
-    np.take(index, faces, out=faces, mode="clip")  # in place ("raise" would buffer a copy); every index is valid
-    used = np.flatnonzero(used)
-    x = x[used]
-    del index
+    used = _compact(faces, len(x))  # faces renumbered in place
+    x = np.take(x, used, axis=0)
     # grad f: evaluated at the vertices in cells (sorted first), known at the crossings
     in_cell = int(np.searchsorted(used, n))
     gradient = np.empty_like(x)
@@ -453,99 +445,25 @@ def _contour(
     return Mesh(x, faces, _normals(gradient, x, faces), gradient=gradient)
 
 
-def _inner(cell: np.ndarray, lo: Any, hi: Any, spacing: Any) -> tuple[np.ndarray, np.ndarray]:
-    """Corners (V, 3) of cells (V, 3) of the grid from ``lo`` to ``hi``, less ``INTERIOR`` of a cell on
-    each side (or, given one axis's cell indices (V,) and scalars, that axis's)."""
-    cell_lo = lo + cell * spacing
-    cell_hi = np.minimum(cell_lo + spacing, hi)
-    return cell_lo + INTERIOR * spacing, cell_hi - INTERIOR * spacing
-
-
-def _solve_qef(
-    ata: np.ndarray, atb: np.ndarray, mass: np.ndarray, cell_lo: np.ndarray, cell_hi: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """Minimisers (V, 3) of the QEFs about their mass points, in their cells, and the number of
-    directions kept (V,).
-
-    A crease (two directions kept) leaves a line of minimisers; where the one nearest the mass
-    point lies outside the cell, the line's point nearest to it inside the cell is taken (the
-    crease only clips the cell), and only where the line misses the cell is the point clamped.
-    """
-    rhs = atb - np.einsum("vij,vj->vi", ata, mass)
-    x = mass.copy()
-    rank = np.ones(len(x), dtype=np.int64)
-    # smooth patches first, without an eigendecomposition: power iteration from the largest column
-    # gives the top eigenpair; its Rayleigh quotient q <= l1, so trace - q >= l2 + l3 bounds l2
-    # (on the entries' columns, each contiguous: einsum over (V, 3, 3) costs several times more)
-    a = [[np.ascontiguousarray(ata[:, i, j]) for j in range(3)] for i in range(3)]
-    column = np.stack([a[0][0], a[1][1], a[2][2]]).argmax(axis=0)
-    v = [np.choose(column, a[i]) for i in range(3)]
-    for _ in range(4):
-        v = [a[i][0] * v[0] + a[i][1] * v[1] + a[i][2] * v[2] for i in range(3)]
-        scale = 1.0 / np.maximum(np.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]), 1e-300)
-        v = [vi * scale for vi in v]
-    av = [a[i][0] * v[0] + a[i][1] * v[1] + a[i][2] * v[2] for i in range(3)]
-    q = v[0] * av[0] + v[1] * av[1] + v[2] * av[2]
-    trace = a[0][0] + a[1][1] + a[2][2]
-    flat = (trace - q <= SINGULAR_CUTOFF * q) & (q > 0)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = np.where(flat, (v[0] * rhs[:, 0] + v[1] * rhs[:, 1] + v[2] * rhs[:, 2]) / q, 0.0)
-    x += np.stack(v, axis=1) * t[:, None]
-    rest = np.flatnonzero(~flat)
-    if len(rest):
-        w, u = np.linalg.eigh(ata[rest])
-        keep = w > SINGULAR_CUTOFF * w[:, -1:]
-        inv = np.where(keep, 1.0 / np.where(keep, w, 1.0), 0.0)
-        coef = np.einsum("vji,vj->vi", u, rhs[rest]) * inv
-        x[rest] += np.einsum("vij,vj->vi", u, coef)
-        rank[rest] = keep.sum(axis=1)
-    else:
-        u = np.zeros((0, 3, 3))
-    crease = np.flatnonzero(rank[rest] == 2)
-    outside = ((x[rest[crease]] < cell_lo[rest[crease]]) | (x[rest[crease]] > cell_hi[rest[crease]])).any(axis=1)
-    out = rest[crease[outside]]
-    if len(out):  # slide along the crease (the eigenvector of the dropped eigenvalue) into the cell
-        line = u[crease[outside], :, 0]
-        start = x[out]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t1 = (cell_lo[out] - start) / line
-            t2 = (cell_hi[out] - start) / line
-        moving = np.abs(line) > 1e-12
-        inside = (start >= cell_lo[out]) & (start <= cell_hi[out])
-        tmin = np.where(moving, np.minimum(t1, t2), np.where(inside, -np.inf, np.inf)).max(axis=1)
-        tmax = np.where(moving, np.maximum(t1, t2), np.where(inside, np.inf, -np.inf)).min(axis=1)
-        hit = tmin <= tmax
-        t = np.clip(0.0, tmin, tmax)
-        x[out[hit]] = start[hit] + t[hit, None] * line[hit]
-    return np.clip(x, cell_lo, cell_hi), rank
-
-
 def _project_smooth(
     f: Callable,
     x: np.ndarray,
     rank: np.ndarray,
-    cell_lo: np.ndarray,
-    cell_hi: np.ndarray,
-    device: Any,
+    cell: np.ndarray,
+    lo: np.ndarray,
+    hi: np.ndarray,
     spacing: np.ndarray,
+    device: Any,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Vertices on smooth patches (rank 1) moved onto f = 0 by a Newton step along grad f, where
+    """Vertices on smooth patches (rank 1) moved (in place) onto f = 0 by a Newton step along grad f, where
     they stay in their cell (the QEF put them within O(h^2) of the surface; one step leaves
     O(h^4)); and grad f (V, 3) where it was evaluated (NaN elsewhere)."""
     smooth = np.flatnonzero(rank == 1)
     gradient = np.full_like(x, np.nan)
     if len(smooth) == 0:
         return x, gradient
-    y = x[smooth]
-    value, g = _value_and_grad(f, y, device)
-    g2 = np.einsum("ij,ij->i", g, g)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        step = np.where(g2 > 0, value / g2, 0.0)[:, None] * g
-    y = y - np.where(np.isfinite(step), step, 0.0)
-    slack = 1e-9 * spacing
-    ok = ((y >= cell_lo[smooth] - slack) & (y <= cell_hi[smooth] + slack)).all(axis=1) & np.isfinite(y).all(axis=1)
-    x = x.copy()
-    x[smooth[ok]] = np.clip(y[ok], cell_lo[smooth[ok]], cell_hi[smooth[ok]])
+    value, g = _value_and_grad(f, x[smooth], device)
+    _newton_into_cells(x, smooth, value, g, cell, lo, hi, spacing, INTERIOR)
     gradient[smooth] = g
     return x, gradient
 

@@ -21,7 +21,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-_jit = numba.njit(cache=True, nogil=True)
+_jit = numba.njit(cache=True, nogil=True, error_model="numpy")  # x / 0: inf or NaN, as in NumPy
 
 
 @_jit
@@ -111,29 +111,34 @@ def _edge_vertices(
     out = np.full((n, 4), -1, dtype=np.int64)
     size = keys.shape[0]
     cell = np.empty(3, dtype=np.int64)
-    for e in range(n):
-        a = edge_axis[e]
-        b, c = (a + 1) % 3, (a + 2) % 3
-        for q in range(4):
-            db = 1 if q == 0 or q == 3 else 0  # (1, 1), (0, 1), (0, 0), (1, 0)
-            dc = 1 if q < 2 else 0
+    for q in range(4):  # one corner at a time: its cells' keys come in ascending order within an axis
+        db = 1 if q == 0 or q == 3 else 0  # (1, 1), (0, 1), (0, 0), (1, 0)
+        dc = 1 if q < 2 else 0
+        at = 0
+        for e in range(n):
+            a = edge_axis[e]
+            b, c = (a + 1) % 3, (a + 2) % 3
             cell[0], cell[1], cell[2] = edge_node[e, 0], edge_node[e, 1], edge_node[e, 2]
             cell[b] -= db
             cell[c] -= dc
             if cell[b] < 0 or cell[c] < 0 or cell[0] >= ncell[0] or cell[1] >= ncell[1] or cell[2] >= ncell[2]:
                 continue
             key = (cell[0] * ncell[1] + cell[1]) * ncell[2] + cell[2]
-            low, high = 0, size
-            while low < high:  # the first key >= key
-                mid = (low + high) >> 1
-                if keys[mid] < key:
-                    low = mid + 1
-                else:
-                    high = mid
-            if low < size and keys[low] == key:
-                comp = component[config[low], 4 * a + db + 2 * dc]
+            if at > 0 and keys[at - 1] >= key:  # keys went down (the next axis): binary search
+                low, high = 0, at
+                while low < high:
+                    mid = (low + high) >> 1
+                    if keys[mid] < key:
+                        low = mid + 1
+                    else:
+                        high = mid
+                at = low
+            while at < size and keys[at] < key:  # the first key >= key, walking up
+                at += 1
+            if at < size and keys[at] == key:
+                comp = component[config[at], 4 * a + db + 2 * dc]
                 if comp >= 0:
-                    out[e, q] = base[low] + comp
+                    out[e, q] = base[at] + comp
     return out
 
 
@@ -221,8 +226,259 @@ def _move_inside(
         if step[v] == 0.0 or not np.isfinite(step[v]):
             continue
         for d in range(3):
-            cell_lo = lo[d] + cell[v, d] * spacing[d]
-            cell_hi = min(cell_lo + spacing[d], hi[d])
-            inner_lo, inner_hi = cell_lo + margin * spacing[d], cell_hi - margin * spacing[d]
+            inner_lo, inner_hi = _inner_cell(cell[v], lo, hi, spacing, margin, d)
             moved = x[v, d] - step[v] * gradient[v, d]
             x[v, d] = min(max(moved, inner_lo), inner_hi)
+
+
+@_jit
+def _inner_cell(cell: np.ndarray, lo: np.ndarray, hi: np.ndarray, spacing: np.ndarray, margin: float, d: int) -> tuple:
+    """Axis d's bounds of cell (3,) of the grid from ``lo`` to ``hi``, less ``margin`` of a cell on each side."""
+    cell_lo = lo[d] + cell[d] * spacing[d]
+    cell_hi = min(cell_lo + spacing[d], hi[d])
+    return cell_lo + margin * spacing[d], cell_hi - margin * spacing[d]
+
+
+@_jit
+def _solve_qefs(
+    sums: np.ndarray,
+    cell: np.ndarray,
+    shared: np.ndarray,
+    lo: np.ndarray,
+    hi: np.ndarray,
+    spacing: np.ndarray,
+    margin: float,
+    cutoff: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each vertex's QEF minimiser (V, 3) about its mass point, kept in its cell; the mass points
+    (V, 3); the number of directions kept (V,) int64 (0 where ``shared``: the vertex is its mass point).
+
+    sums : (V, 13) from :func:`_qef_sums`; cell : (V, 3) each vertex's cell, whose bounds less ``margin``
+    of a cell bound the vertex; cutoff : relative eigenvalue below which a direction is free.
+
+    A smooth patch (one direction) needs no eigendecomposition: power iteration from the largest
+    column gives the top eigenpair; its Rayleigh quotient q <= l1, so trace - q >= l2 + l3 bounds
+    l2.  Otherwise the pseudo-inverse from the eigendecomposition.  A crease (two directions
+    kept) leaves a line of minimisers: where the one nearest the mass point lies outside the
+    cell, the line's point nearest to it inside the cell is taken (the crease only clips the
+    cell); only where the line misses the cell is the point clamped.
+    """
+    n = sums.shape[0]
+    x = np.empty((n, 3))
+    mass = np.empty((n, 3))
+    rank = np.ones(n, dtype=np.int64)
+    ata = np.empty((3, 3))
+    rhs = np.empty(3)
+    v = np.empty(3)
+    av = np.empty(3)
+    box_lo = np.empty(3)
+    box_hi = np.empty(3)
+    pairs = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
+    for i in range(n):
+        count = max(sums[i, 12], 1.0)
+        for d in range(3):
+            box_lo[d], box_hi[d] = _inner_cell(cell[i], lo, hi, spacing, margin, d)
+            mass[i, d] = min(max(sums[i, 9 + d] / count, box_lo[d]), box_hi[d])
+            x[i, d] = mass[i, d]
+        if shared[i]:  # a cell crossed by two sheets: the QEF's point could cross the other one
+            rank[i] = 0
+            continue
+        for k in range(6):
+            r, c = pairs[k]
+            ata[r, c] = ata[c, r] = sums[i, k]
+        for r in range(3):
+            rhs[r] = sums[i, 6 + r] - (ata[r, 0] * mass[i, 0] + ata[r, 1] * mass[i, 1] + ata[r, 2] * mass[i, 2])
+        column = 0
+        for d in (1, 2):
+            if ata[d, d] > ata[column, column]:
+                column = d
+        for d in range(3):
+            v[d] = ata[d, column]
+        for _ in range(4):
+            for r in range(3):
+                av[r] = ata[r, 0] * v[0] + ata[r, 1] * v[1] + ata[r, 2] * v[2]
+            scale = 1.0 / max(np.sqrt(av[0] * av[0] + av[1] * av[1] + av[2] * av[2]), 1e-300)
+            for d in range(3):
+                v[d] = av[d] * scale
+        for r in range(3):
+            av[r] = ata[r, 0] * v[0] + ata[r, 1] * v[1] + ata[r, 2] * v[2]
+        q = v[0] * av[0] + v[1] * av[1] + v[2] * av[2]
+        trace = ata[0, 0] + ata[1, 1] + ata[2, 2]
+        if trace - q <= cutoff * q and q > 0:
+            t = (v[0] * rhs[0] + v[1] * rhs[1] + v[2] * rhs[2]) / q
+            for d in range(3):
+                x[i, d] = min(max(x[i, d] + v[d] * t, box_lo[d]), box_hi[d])
+            continue
+        w, u = np.linalg.eigh(ata)
+        kept = 0
+        for j in range(3):
+            if w[j] > cutoff * w[2]:
+                kept += 1
+                coef = (u[0, j] * rhs[0] + u[1, j] * rhs[1] + u[2, j] * rhs[2]) / w[j]
+                for d in range(3):
+                    x[i, d] += u[d, j] * coef
+        rank[i] = kept
+        outside = False
+        for d in range(3):
+            outside |= x[i, d] < box_lo[d] or x[i, d] > box_hi[d]
+        if kept == 2 and outside:  # slide along the crease (the dropped eigenvalue's eigenvector) into the cell
+            t_min, t_max = -np.inf, np.inf
+            for d in range(3):
+                line, start = u[d, 0], x[i, d]
+                if abs(line) > 1e-12:
+                    t1, t2 = (box_lo[d] - start) / line, (box_hi[d] - start) / line
+                    t_min, t_max = max(t_min, min(t1, t2)), min(t_max, max(t1, t2))
+                elif start < box_lo[d] or start > box_hi[d]:
+                    t_min, t_max = np.inf, -np.inf
+            if t_min <= t_max:
+                t = min(max(0.0, t_min), t_max)
+                for d in range(3):
+                    x[i, d] += t * u[d, 0]
+        for d in range(3):
+            x[i, d] = min(max(x[i, d], box_lo[d]), box_hi[d])
+    return x, mass, rank
+
+
+@_jit
+def _newton_into_cells(
+    x: np.ndarray,
+    rows: np.ndarray,
+    value: np.ndarray,
+    gradient: np.ndarray,
+    cell: np.ndarray,
+    lo: np.ndarray,
+    hi: np.ndarray,
+    spacing: np.ndarray,
+    margin: float,
+) -> None:
+    """x[rows] (in place) moved by one Newton step -f grad f / |grad f|^2 (f and grad f at x[rows]:
+    ``value`` (K,), ``gradient`` (K, 3)) where the step is finite and lands in the vertex's cell
+    ``cell[rows]`` less ``margin`` of a cell (within 1e-9 of a cell: then clipped to it)."""
+    for k in range(rows.shape[0]):
+        i = rows[k]
+        g2 = gradient[k, 0] * gradient[k, 0] + gradient[k, 1] * gradient[k, 1] + gradient[k, 2] * gradient[k, 2]
+        scale = value[k] / g2 if g2 > 0 else 0.0
+        ok = True
+        y = np.empty(3)
+        for d in range(3):
+            step = scale * gradient[k, d]
+            y[d] = x[i, d] - (step if np.isfinite(step) else 0.0)
+            inner_lo, inner_hi = _inner_cell(cell[i], lo, hi, spacing, margin, d)
+            slack = 1e-9 * spacing[d]
+            ok &= np.isfinite(y[d]) and y[d] >= inner_lo - slack and y[d] <= inner_hi + slack
+        if ok:
+            for d in range(3):
+                inner_lo, inner_hi = _inner_cell(cell[i], lo, hi, spacing, margin, d)
+                x[i, d] = min(max(y[d], inner_lo), inner_hi)
+
+
+@_jit
+def _unit_normals(gradient: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """-grad f / |grad f| per row of ``gradient`` (V, 3), and whether |grad f| was finite and nonzero
+    (V,) (the normal is 0 where not)."""
+    n = gradient.shape[0]
+    normals = np.zeros((n, 3))
+    good = np.empty(n, dtype=np.bool_)
+    for i in range(n):
+        length = np.sqrt(
+            gradient[i, 0] * gradient[i, 0] + gradient[i, 1] * gradient[i, 1] + gradient[i, 2] * gradient[i, 2]
+        )
+        good[i] = np.isfinite(length) and length > 0
+        if good[i]:
+            for d in range(3):
+                normals[i, d] = -gradient[i, d] / length
+    return normals, good
+
+
+@_jit
+def _compact(faces: np.ndarray, n_vertices: int) -> np.ndarray:
+    """The vertices (U,) that ``faces`` (F, 3) use, in order; ``faces`` renumbered to them in place."""
+    index = np.full(n_vertices, -1, dtype=np.int64)
+    for i in range(faces.shape[0]):
+        for k in range(3):
+            index[faces[i, k]] = 0
+    used = 0
+    for v in range(n_vertices):
+        if index[v] == 0:
+            index[v] = used
+            used += 1
+    kept = np.empty(used, dtype=np.int64)
+    for v in range(n_vertices):
+        if index[v] >= 0:
+            kept[index[v]] = v
+    for i in range(faces.shape[0]):
+        for k in range(3):
+            faces[i, k] = index[faces[i, k]]
+    return kept
+
+
+@_jit
+def _edge_points(
+    rows: np.ndarray, start: np.ndarray, axis: np.ndarray, start_axis: np.ndarray, h: np.ndarray, c: np.ndarray
+) -> np.ndarray:
+    """Points (K, 3) at ``c[r]`` (edge units) along edges ``rows`` (K,): ``start[r]`` (3,) moved to
+    ``start_axis[r] + c[r] h[r]`` along axis ``axis[r]``."""
+    out = np.empty((rows.shape[0], 3))
+    for k in range(rows.shape[0]):
+        r = rows[k]
+        for d in range(3):
+            out[k, d] = start[r, d]
+        out[k, axis[r]] = start_axis[r] + c[r] * h[r]
+    return out
+
+
+@_jit
+def _secant_step(
+    rows: np.ndarray,
+    fc: np.ndarray,
+    first: bool,
+    f0: np.ndarray,
+    f1: np.ndarray,
+    slope: np.ndarray,
+    h: np.ndarray,
+    c: np.ndarray,
+    a: np.ndarray,
+    fa: np.ndarray,
+    p: np.ndarray,
+    fp: np.ndarray,
+    step_tol: float,
+    root: np.ndarray,
+) -> np.ndarray:
+    """One step of Dekker's safeguarded secant on the edges ``rows`` (K,), f at their estimates
+    ``fc`` (K,); the rows still moving come back.
+
+    Per edge r (in edge units; state updated in place): ``c`` the estimate, ``a``, ``fa`` the bracket's
+    other end, ``p``, ``fp`` the previous iterate.  The first step sets the bracket from the end
+    values ``f0``, ``f1`` and takes Newton's step with ``slope``; the next ones take the secant
+    through the last two iterates, after moving the bracket's end to the previous iterate when the
+    sign changed.  A step that leaves the bracket is replaced by regula falsi's (inside it).  An
+    edge is done (``root[r]`` set) when the step is below ``step_tol`` (length units) or f is 0.
+    """
+    moving = np.empty(rows.shape[0], dtype=np.int64)
+    m = 0
+    for k in range(rows.shape[0]):
+        r = rows[k]
+        fck, ck = fc[k], c[r]
+        if first:  # the bracket: the grid end whose value has the other sign
+            same = (fck > 0) == (f0[r] > 0)
+            a[r] = 1.0 if same else 0.0
+            fa[r] = f1[r] if same else f0[r]
+            nxt = ck - fck / slope[r]  # Newton with the cubic's slope
+        else:  # the bracket becomes [previous iterate, c] when the sign changed
+            if (fck > 0) != (fp[r] > 0):
+                a[r], fa[r] = p[r], fp[r]
+            nxt = ck - fck * (ck - p[r]) / (fck - fp[r])
+        move = nxt - ck
+        if not ((nxt - a[r]) * move < 0):  # regula falsi: inside
+            nxt = ck - fck * (ck - a[r]) / (fck - fa[r])
+            move = nxt - ck
+        finished = abs(move) * h[r] <= step_tol  # False for NaN
+        if finished:
+            root[r] = nxt
+        if fck == 0:
+            root[r] = ck
+        elif not finished and np.isfinite(fck):
+            p[r], fp[r], c[r] = ck, fck, nxt
+            moving[m] = r
+            m += 1
+    return moving[:m]

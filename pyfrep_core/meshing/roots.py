@@ -22,6 +22,7 @@ from .._array import validated_inputs
 from ..diff import project_to_surface, value_and_grad
 from ..evaluate import evaluate
 from .grid import _chunk_points, _map
+from .loops import _edge_points, _secant_step, _unit_normals
 
 ROOT_CHUNK = 1 << 14  # vertices per float64 evaluation while projecting (CPU; chunks run in parallel)
 
@@ -242,51 +243,16 @@ def _bracketed_roots(
     ``max_iter`` steps with their last estimates ``c``.
     """
     root = np.full(len(c), np.nan)
-    # the rows still moving: their points, where their coordinate along the edge starts, edge
-    # lengths and axes.  A point start + c * edge differs from start only along the edge, as c
-    # stays finite (in [0, 1]: a step that leaves the bracket is replaced by regula falsi's,
-    # c - fc (c - a) / (fc - fa) with fc, fa of opposite signs, which lies between c and a)
-    rows, x, xa, hs, ax = np.arange(len(c)), start.copy(), start_axis, h, axis
-    a = fa = p = fp = None  # bracket end opposite to c, and the previous iterate
-    for _ in range(max_iter):
-        x.reshape(-1)[np.arange(len(rows)) * 3 + ax] = xa + c * hs
-        fc = _f64(f, x, device)
-        positive = fc > 0
-        with np.errstate(divide="ignore", invalid="ignore"):
-            if a is None:  # the bracket: the grid end whose value has the other sign
-                same = positive == (f0 > 0)
-                a = same.astype(np.float64)
-                fa = np.where(same, f1, f0)
-                nxt = c - fc / slope  # Newton with the cubic's slope
-            else:  # the bracket becomes [previous iterate, c] when the sign changed
-                flip = positive != (fp > 0)
-                np.copyto(a, p, where=flip)
-                np.copyto(fa, fp, where=flip)
-                secant = c - p  # secant: c - fc (c - p) / (fc - fp)
-                secant *= fc
-                secant /= fc - fp
-                nxt = c - secant
-            move = nxt - c
-            outside = np.flatnonzero(~((nxt - a) * move < 0))
-            if len(outside):  # regula falsi: inside
-                co, fo = c[outside], fc[outside]
-                nxt[outside] = co - fo * (co - a[outside]) / (fo - fa[outside])
-                move[outside] = nxt[outside] - co
-        finished = np.abs(move) * hs <= step_tol  # False for NaN
-        exact = fc == 0
-        finished_rows = np.flatnonzero(finished)
-        root[rows[finished_rows]] = nxt[finished_rows]
-        if exact.any():
-            root[rows[exact]] = c[exact]
-        go = np.flatnonzero(~(finished | exact) & np.isfinite(fc))
-        if len(go) == len(rows):
-            p, fp, c = c, fc, nxt
-            continue
-        rows, p, fp, c, a, fa = rows[go], c[go], fc[go], nxt[go], a[go], fa[go]
+    c = np.array(c, dtype=np.float64)  # the estimates, per edge (updated in place by the steps)
+    a, fa, p, fp = (np.zeros(len(c)) for _ in range(4))  # bracket end opposite to c, previous iterate
+    h = np.ascontiguousarray(np.broadcast_to(h, c.shape), dtype=np.float64)
+    rows = np.arange(len(c))
+    for step in range(max_iter):
+        fc = _f64(f, _edge_points(rows, start, axis, start_axis, h, c), device)
+        rows = _secant_step(rows, fc, step == 0, f0, f1, slope, h, c, a, fa, p, fp, step_tol, root)
         if len(rows) == 0:
             break
-        x, xa, hs, ax = np.take(x, go, axis=0), xa[go], hs[go], ax[go]
-    return root, rows, c
+    return root, rows, c[rows]
 
 
 def _cubic_root(
@@ -350,14 +316,9 @@ def _cubic_slope(r: np.ndarray, b1: np.ndarray, twice_b2: np.ndarray, b3: np.nda
 
 def _normals(gradient: np.ndarray, verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """Unit outward normals -grad f / |grad f|; the area-weighted face normal where grad f vanishes."""
-    length = _row_norms(gradient)
-    good = np.isfinite(length) & (length > 0)
+    normals, good = _unit_normals(np.ascontiguousarray(gradient, dtype=np.float64))
     if good.all():
-        normals = np.negative(gradient)
-        normals /= length[:, None]
         return normals
-    normals = np.zeros_like(verts)
-    normals[good] = -gradient[good] / length[good, None]
     if len(faces):
         a, b, c = (verts[faces[:, i]] for i in range(3))
         face_n = np.cross(b - a, c - a)

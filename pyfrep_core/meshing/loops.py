@@ -240,6 +240,39 @@ def _inner_cell(cell: np.ndarray, lo: np.ndarray, hi: np.ndarray, spacing: np.nd
 
 
 @_jit
+def _symmetric_eigen3(m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Eigenvalues (3,) ascending and unit eigenvectors (3, 3) (columns) of a symmetric 3 x 3 matrix,
+    by cyclic Jacobi rotations (a few sweeps; accurate to rounding, no LAPACK call per cell)."""
+    a = m.copy()
+    v = np.eye(3)
+    for _ in range(32):
+        off = a[0, 1] * a[0, 1] + a[0, 2] * a[0, 2] + a[1, 2] * a[1, 2]
+        if off == 0.0 or off <= 1e-36 * (a[0, 0] * a[0, 0] + a[1, 1] * a[1, 1] + a[2, 2] * a[2, 2]):
+            break
+        for p, q in ((0, 1), (0, 2), (1, 2)):
+            if a[p, q] == 0.0:
+                continue
+            theta = 0.5 * (a[q, q] - a[p, p]) / a[p, q]
+            t = 1.0 / (abs(theta) + np.sqrt(1.0 + theta * theta))  # the smaller root of t^2 + 2 theta t = 1
+            if theta < 0:
+                t = -t
+            c = 1.0 / np.sqrt(1.0 + t * t)
+            s = t * c
+            for k in range(3):  # A J
+                akp, akq = a[k, p], a[k, q]
+                a[k, p], a[k, q] = c * akp - s * akq, s * akp + c * akq
+            for k in range(3):  # J^T (A J)
+                apk, aqk = a[p, k], a[q, k]
+                a[p, k], a[q, k] = c * apk - s * aqk, s * apk + c * aqk
+            for k in range(3):
+                vkp, vkq = v[k, p], v[k, q]
+                v[k, p], v[k, q] = c * vkp - s * vkq, s * vkp + c * vkq
+    w = np.array([a[0, 0], a[1, 1], a[2, 2]])
+    order = np.argsort(w)
+    return w[order], v[:, order]
+
+
+@_jit
 def _solve_qefs(
     sums: np.ndarray,
     cell: np.ndarray,
@@ -309,7 +342,7 @@ def _solve_qefs(
             for d in range(3):
                 x[i, d] = min(max(x[i, d] + v[d] * t, box_lo[d]), box_hi[d])
             continue
-        w, u = np.linalg.eigh(ata)
+        w, u = _symmetric_eigen3(ata)
         kept = 0
         for j in range(3):
             if w[j] > cutoff * w[2]:

@@ -49,17 +49,20 @@ and the whole-mesh passes (unbiasing, folds), which run in chunks.
 from __future__ import annotations
 
 import contextlib
+import threading
 import warnings
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from typing import Any, NamedTuple
 
 import numpy as np
 import torch
 
+from .._threads import intra_op_threads
 from ..model import check_bounds
 from ..progress import Progress
 from .folds import _without_folds
-from .grid import _check_memory, _resolution, _return_freed_memory, grid_axes
+from .grid import CHUNK_POINTS, _check_memory, _chunk_points, _resolution, _return_freed_memory, grid_axes
 from .loops import (
     _add_requests,
     _compact,
@@ -78,7 +81,10 @@ __all__ = ["dual_contour", "SINGULAR_CUTOFF", "LEAF_BLOCK"]
 
 SINGULAR_CUTOFF = 0.05  # relative eigenvalue of A^T A below which a direction is free (a crease of > 25 degrees stays)
 LEAF_BLOCK = 4  # cells per leaf block edge: the octree's finest interval test
-SLAB_BLOCKS = 1 << 14  # leaf blocks sampled and contoured at a time (memory: about 200 MB of Hermite data)
+SLAB_BLOCKS = (
+    1 << 14
+)  # leaf blocks sampled and contoured at a time, all workers together (about 200 MB of Hermite data)
+WORKERS = 2  # threads meshing slabs side by side on the CPU
 FINISH_CHUNK = 1 << 18  # quads or triangles at a time in the whole-mesh passes (their temporaries' memory)
 INTERIOR = 1e-6  # cells: vertices kept this far inside their cells, crossings this far from the edges' ends
 
@@ -230,33 +236,53 @@ def dual_contour(
     block = tree.block
     if not tree.certified:
         _check_memory(res, dtype)  # every block is sampled: the dense grid's memory
-    slabs = _slabs(tree.blocks, block, cells[0])
-    n_chunks = sum(-(-len(part) // max(1, (1 << 15) // (block + 1) ** 3)) for part, _, _ in slabs)
+    workers = WORKERS if torch.device(device).type == "cpu" else 1
+    slabs = _slabs(tree.blocks, block, cells[0], max(1, min(SLAB_BLOCKS // workers, -(-len(tree.blocks) // workers))))
+    per_chunk = max(1, _chunk_points(f, CHUNK_POINTS) // (block + 1) ** 3)  # sample_blocks' chunks
+    n_chunks = sum(-(-len(part) // per_chunk) for part, _, _ in slabs)
     empty = Mesh(np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64), np.zeros((0, 3)))
-    with progress(max(n_chunks, 1)) if progress is not None else contextlib.nullcontext() as bar:
-        # slab by slab of whole block layers along x: the memory of the samples and of their Hermite
-        # data stays bounded; one layer of cells (their vertices) is carried to the next slab
-        parts, carry, step = [], None, 0
-        for part, first, end in slabs:
-            samples = sample_blocks(f, axes, part, block, dtype, device, bar, step)
-            if samples is None:
+    with (
+        progress(max(n_chunks, 1)) if progress is not None else contextlib.nullcontext() as bar,
+        ThreadPoolExecutor(workers, thread_name_prefix="pyfrep-dc") as pool,
+    ):
+        counted = _Counted(bar) if bar is not None else None
+
+        def sample(slab: tuple[np.ndarray, int, int]) -> Samples | None:
+            with intra_op_threads(1 if workers > 1 else None):
+                return sample_blocks(f, axes, slab[0], block, dtype, device, counted)
+
+        def contour(job: tuple) -> _Vertices:
+            with intra_op_threads(1 if workers > 1 else None):
+                return _slab(f, *job, lo, hi, spacing, cells, device, tol)
+
+        # slabs of whole block layers along x, ``workers`` at a time, each on its own thread (the
+        # compiled loops and torch's kernels run without the GIL): the memory of the samples and
+        # of their Hermite data stays bounded; each slab's last cell layer (its vertices) is carried
+        # to the next slab, whose first vertex is known once the slab is sampled
+        parts, carry, offset = [], None, 0
+        for first_slab in range(0, len(slabs), workers):
+            group = slabs[first_slab : first_slab + workers]
+            samples = list(pool.map(sample, group))
+            if any(s is None for s in samples):
                 return empty
-            step += -(-len(part) // max(1, (1 << 15) // (block + 1) ** 3))
-            if len(samples.f0) == 0:
-                carry = None
-                continue
-            offset = sum(len(p.x) for p in parts)
-            piece, carry = _slab(f, samples, carry, first, end, offset, lo, hi, spacing, cells, device, tol)
-            parts.append(piece)
+            jobs = []
+            for s, (_, first, end) in zip(samples, group):
+                if len(s.f0) == 0:
+                    carry = None
+                    continue
+                jobs.append((s, carry, first, end, offset))
+                carry, offset = _last_layer(s, end, offset)
+            parts.extend(pool.map(contour, jobs))
+            del samples, jobs
     if not parts or sum(len(p.quads) for p in parts) == 0:
         warnings.warn("polygonize: f does not change sign inside the bounds; empty mesh", RuntimeWarning, stacklevel=2)
         return empty
     return _contour(f, parts, lo, hi, spacing, cells, device)
 
 
-def _slabs(blocks: np.ndarray, block: int, ncell_x: int) -> list[tuple[np.ndarray, int, int]]:
-    """The leaf blocks in slabs of whole layers along x of at most ``SLAB_BLOCKS`` blocks (at least
-    one layer), each with its first cell layer and the end of its cell layers."""
+def _slabs(blocks: np.ndarray, block: int, ncell_x: int, limit: int) -> list[tuple[np.ndarray, int, int]]:
+    """The leaf blocks in slabs of whole layers along x of at most ``limit`` blocks (at least one
+    layer), each with its first cell layer and the end of its cell layers."""
     order = np.argsort(blocks[:, 0], kind="stable")
     blocks = blocks[order]
     layer, start = np.unique(blocks[:, 0], return_index=True)
@@ -264,7 +290,7 @@ def _slabs(blocks: np.ndarray, block: int, ncell_x: int) -> list[tuple[np.ndarra
     out, first = [], 0
     while first < len(layer):
         last = first + 1
-        while last < len(layer) and bounds[last + 1] - bounds[first] <= SLAB_BLOCKS:
+        while last < len(layer) and bounds[last + 1] - bounds[first] <= limit:
             last += 1
         part = blocks[bounds[first] : bounds[last]]
         out.append((part, int(layer[first]) * block, min(int(layer[last - 1] + 1) * block, ncell_x)))
@@ -339,13 +365,13 @@ def _slab(
     cells: tuple[int, int, int],
     device: Any,
     tol: float | None,
-) -> tuple[_Vertices, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+) -> _Vertices:
     """Vertices of the mixed cells of the slab of cell layers [first, end) along x, numbered from
     ``offset``, and the quads of the crossing edges that start in it (node x in [first, end)).
 
     ``s`` holds every edge of these cells (their blocks' nodes reach layer ``end``); ``carry`` is
     the previous slab's last cell layer (flat keys, global first vertex, configuration), whose
-    vertices the quads of edges on layer ``first`` need.  Returns the slab's last layer as the next carry.
+    vertices the quads of edges on layer ``first`` need (:func:`_last_layer`).
     """
     points, normal, point_gradient = _hermite(f, s, lo, spacing, device, tol)
     ncell = np.asarray(cells, dtype=np.int64)
@@ -388,9 +414,28 @@ def _slab(
         points[own],
         point_gradient[own],
     )
+    return part
+
+
+def _last_layer(s: Samples, end: int, offset: int) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray], int]:
+    """A slab's carry for the next one (its last cell layer ``end - 1``: flat keys, global first vertex,
+    configuration), its vertices numbered from ``offset``, and the next slab's first vertex."""
+    n_comp = _N_COMPONENTS[s.config].astype(np.int64)
+    first_vertex = np.cumsum(n_comp) - n_comp + offset
     last = s.cell[:, 0] == end - 1
-    next_carry = (s.cell_key[last], first_vertex[:-1][last] + offset, s.config[last])
-    return part, next_carry
+    return (s.cell_key[last], first_vertex[last], s.config[last]), offset + int(n_comp.sum())
+
+
+class _Counted:
+    """A progress that counts the chunks done, whichever thread and slab they come from (in order)."""
+
+    def __init__(self, bar: Progress) -> None:
+        self.bar, self.done, self.lock = bar, 0, threading.Lock()
+
+    def update(self, step: int) -> bool:
+        with self.lock:
+            self.done += 1
+            return self.bar.update(self.done - 1)
 
 
 def _contour(

@@ -67,6 +67,7 @@ from .loops import (
     _add_requests,
     _compact,
     _edge_vertices,
+    _gather_rows,
     _move_inside,
     _newton_into_cells,
     _qef_sums,
@@ -316,7 +317,8 @@ def _hermite(
     root, rest, c_rest = _bracketed_roots(f, start, start_axis, h, s.edge_axis, c, slope, s.f0, s.f1, step_tol, device)
     root[rest] = c_rest  # not converged in max_iter steps (a grazing edge): the best estimate
     root = np.clip(np.where(np.isfinite(root), root, c), INTERIOR, 1.0 - INTERIOR)
-    points = start.copy()
+    points = np.empty((3, len(start))).T  # component-first, as compiled kernels read points: no copy there
+    points[:] = start
     points[rows, s.edge_axis] = start_axis + root * h
     _, g = _value_and_grad(f, points, device)
     length = np.linalg.norm(g, axis=1)
@@ -484,7 +486,7 @@ def _contour(
     # grad f: evaluated at the vertices in cells (sorted first), known at the crossings
     in_cell = int(np.searchsorted(used, n))
     gradient = np.empty_like(x)
-    gradient[:in_cell] = _value_and_grad(f, x[:in_cell], device)[1]
+    gradient[:in_cell] = _value_and_grad(f, _gather_rows(x, np.arange(in_cell)), device)[1]
     gradient[in_cell:] = point_gradient[used[in_cell:] - n]
     del point_gradient, used
     return Mesh(x, faces, _normals(gradient, x, faces), gradient=gradient)
@@ -507,7 +509,7 @@ def _project_smooth(
     gradient = np.full_like(x, np.nan)
     if len(smooth) == 0:
         return x, gradient
-    value, g = _value_and_grad(f, x[smooth], device)
+    value, g = _value_and_grad(f, _gather_rows(x, smooth), device)
     _newton_into_cells(x, smooth, value, g, cell, lo, hi, spacing, INTERIOR)
     gradient[smooth] = g
     return x, gradient

@@ -178,13 +178,18 @@ def _triangle_centroids(
     quads: np.ndarray, points: np.ndarray, point_length: np.ndarray, x: np.ndarray, length: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The triangles (crossing, q_i, q_i+1) of quads (Q, 4) whose two cell vertices are both smooth
-    (finite ``length`` = |grad f|): their centroids (T, 3), their two vertices (T,) each, and the mean
-    |grad f| of their corners (T,); half i of every quad first, then half i + 1 (as the quads' columns)."""
+    (finite ``length`` = |grad f|): their centroids (T, 3) (component-first, as compiled kernels read
+    points), their two vertices (T,) each, and the mean |grad f| of their corners (T,); half i of
+    every quad first, then half i + 1 (as the quads' columns)."""
     nq = quads.shape[0]
-    centroid = np.empty((4 * nq, 3))
-    first = np.empty(4 * nq, dtype=np.int64)
-    second = np.empty(4 * nq, dtype=np.int64)
-    mean_length = np.empty(4 * nq)
+    n = 0
+    for half in range(4):
+        for q in range(nq):
+            n += np.isfinite(length[quads[q, half]]) and np.isfinite(length[quads[q, (half + 1) % 4]])
+    centroid = np.empty((3, n))
+    first = np.empty(n, dtype=np.int64)
+    second = np.empty(n, dtype=np.int64)
+    mean_length = np.empty(n)
     t = 0
     for half in range(4):
         for q in range(nq):
@@ -192,11 +197,21 @@ def _triangle_centroids(
             if not (np.isfinite(length[a]) and np.isfinite(length[b])):
                 continue
             for d in range(3):
-                centroid[t, d] = (points[q, d] + x[a, d] + x[b, d]) / 3.0
+                centroid[d, t] = (points[q, d] + x[a, d] + x[b, d]) / 3.0
             first[t], second[t] = a, b
             mean_length[t] = (point_length[q] + length[a] + length[b]) / 3.0
             t += 1
-    return centroid[:t], first[:t], second[:t], mean_length[:t]
+    return centroid.T, first, second, mean_length
+
+
+@_jit
+def _gather_rows(x: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """x[rows] (K, 3), component-first (as compiled kernels read points)."""
+    out = np.empty((3, rows.shape[0]))
+    for k in range(rows.shape[0]):
+        for d in range(3):
+            out[d, k] = x[rows[k], d]
+    return out.T
 
 
 @_jit
@@ -451,13 +466,13 @@ def _edge_points(
 ) -> np.ndarray:
     """Points (K, 3) at ``c[r]`` (edge units) along edges ``rows`` (K,): ``start[r]`` (3,) moved to
     ``start_axis[r] + c[r] h[r]`` along axis ``axis[r]``."""
-    out = np.empty((rows.shape[0], 3))
+    out = np.empty((3, rows.shape[0]))  # component-first, as compiled kernels read points: no copy there
     for k in range(rows.shape[0]):
         r = rows[k]
         for d in range(3):
-            out[k, d] = start[r, d]
-        out[k, axis[r]] = start_axis[r] + c[r] * h[r]
-    return out
+            out[d, k] = start[r, d]
+        out[axis[r], k] = start_axis[r] + c[r] * h[r]
+    return out.T
 
 
 @_jit

@@ -35,6 +35,8 @@ from .loops import _classify_blocks
 
 __all__ = ["Octree", "Samples", "prune", "sample_blocks"]
 
+ROOT_BLOCKS = 16  # blocks per axis at the octree's coarsest level (a power of two)
+
 
 class Octree(NamedTuple):
     """The pruning's result.
@@ -108,7 +110,9 @@ def prune(
     spacing = np.asarray(spacing, dtype=np.float64)
     ncells = np.asarray(cells, dtype=np.int64)
     nb = -(-ncells // block)  # leaf blocks per axis
-    depth = max(0, math.ceil(math.log2(max(int(nb.max()), 1))) - 2)  # the root level: up to 4^3 blocks
+    # the root level: up to ROOT_BLOCKS^3 blocks (a call costs about 4 ms however few boxes it bounds: coarser
+    # levels would cost more calls than the few blocks they drop)
+    depth = max(0, math.ceil(math.log2(max(int(nb.max()), 1))) - int(math.log2(ROOT_BLOCKS)))
     size = block << depth
     count = -(-ncells // size)
     levels: list[tuple[int, np.ndarray, np.ndarray]] = []

@@ -1,0 +1,136 @@
+"""The meshers' compiled loops (pyfrep_core.meshing.loops) against plain NumPy and closed forms, and
+dual contouring's slabs and threads: the same mesh however the grid is cut.
+"""
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from pyfrep_core import polygonize, sphere
+from pyfrep_core.meshing import dual_contouring
+from pyfrep_core.meshing.loops import _classify_blocks, _compact, _edge_points, _symmetric_eigen3
+from pyfrep_core.meshing.roots import _bracketed_roots
+from pyfrep_core.models import fig1_part
+
+BOX = ((-1.1,) * 3, (1.1,) * 3)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_jacobi_eigen_gives_the_eigenpairs_of_a_rotated_diagonal(seed):
+    rng = np.random.default_rng(seed)
+    rotation = Rotation.random(random_state=seed).as_matrix()
+    values = np.sort(rng.uniform(0.0, 5.0, 3))
+    values[0] = 0.0 if seed % 2 else values[0]  # a QEF of a crease: one zero eigenvalue
+    w, u = _symmetric_eigen3(rotation @ np.diag(values) @ rotation.T)
+    np.testing.assert_allclose(w, values, atol=1e-13 * values[-1])
+    np.testing.assert_allclose(u.T @ u, np.eye(3), atol=1e-14)
+    # each eigenvector is the rotation's column, up to sign (the eigenvalues are distinct)
+    np.testing.assert_allclose(np.abs(np.einsum("ij,ij->j", u, rotation)), 1.0, atol=1e-12)
+
+
+def test_jacobi_eigen_of_a_repeated_eigenvalue_spans_its_plane():
+    n = np.array([0.0, 0.6, 0.8])
+    w, u = _symmetric_eigen3(np.outer(n, n))  # a flat patch: eigenvalues 0, 0, 1
+    np.testing.assert_allclose(w, [0.0, 0.0, 1.0], atol=1e-15)
+    np.testing.assert_allclose(np.abs(u[:, 2]), np.abs(n), atol=1e-15)
+    np.testing.assert_allclose(u[:, :2].T @ n, 0.0, atol=1e-15)
+
+
+def _classify_reference(v, part, s, shape):
+    """Plain NumPy: every node, cell and edge of the blocks, one by one."""
+    cells, edges = {}, {}
+    n = np.prod(shape)
+    for b in range(len(part)):
+        for i, j, m in np.ndindex(s + 1, s + 1, s + 1):
+            g = part[b] * s + (i, j, m)
+            if (g > shape - 1).any():
+                continue
+            if i < s and j < s and m < s and (g < shape - 1).all():
+                inside = [v[b, i + (c & 1), j + (c >> 1 & 1), m + (c >> 2 & 1)] > 0 for c in range(8)]
+                config = sum(int(x) << c for c, x in enumerate(inside))
+                if 0 < config < 255:
+                    cells[int(np.ravel_multi_index(g, shape - 1))] = config
+            for a in range(3):
+                step = np.eye(3, dtype=int)[a]
+                local = np.array([i, j, m])
+                if local[a] == s or g[a] == shape[a] - 1:
+                    continue
+                f0, f1 = v[b, i, j, m], v[(b, *(local + step))]
+                if (f0 > 0) != (f1 > 0):
+                    edges.setdefault(int(np.ravel_multi_index(g, shape)) + a * n, set()).add((f0, f1))
+    return cells, edges
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_block_classification_matches_a_plain_loop(seed):
+    rng = np.random.default_rng(seed)
+    s, shape = 3, np.array([8, 7, 9])  # blocks past the grid's last node (padding) on every axis
+    part = np.array([(x, y, z) for x in range(3) for y in range(3) for z in range(3)], dtype=np.int64)
+    v = rng.normal(size=(len(part), s + 1, s + 1, s + 1))
+    keys, config, edge_keys, f0, f1 = _classify_blocks(v, part, s, shape)
+    cells, edges = _classify_reference(v, part, s, shape)
+    assert dict(zip(keys.tolist(), config.tolist())) == cells and len(keys) == len(cells)
+    # edges on faces shared by two blocks come once from each block, with that block's end values
+    found = {}
+    for key, start, end in zip(edge_keys.tolist(), f0, f1):
+        found.setdefault(key, set()).add((start, end))
+    assert found == edges and len(edge_keys) == sum(len(pairs) for pairs in edges.values())
+
+
+def test_compaction_keeps_the_used_vertices_in_order_and_renumbers_faces():
+    faces = np.array([[5, 2, 7], [7, 2, 9]])
+    kept = _compact(faces, 10)
+    np.testing.assert_array_equal(kept, [2, 5, 7, 9])
+    np.testing.assert_array_equal(faces, [[1, 0, 2], [2, 0, 3]])
+
+
+def test_edge_points_are_component_first_and_on_their_edges():
+    start = np.array([[0.0, 1.0, 2.0], [3.0, 4.0, 5.0]])
+    points = _edge_points(
+        np.array([1, 0]), start, np.array([0, 2]), np.array([0.0, 5.0]), np.full(2, 0.5), np.full(2, 0.25)
+    )
+    np.testing.assert_array_equal(points, [[3.0, 4.0, 5.125], [0.125, 1.0, 2.0]])
+    assert points.strides == (8, 16)  # x[:, 0] contiguous: what compiled kernels read
+
+
+def test_bracketed_roots_find_the_roots_of_a_sphere_on_its_edges():
+    # edges along x from x = 0 to 0.1 at heights where the unit sphere crosses them
+    y = np.linspace(0.0, 0.99, 50)
+    x_root = np.sqrt(1.0 - y * y) - 0.95
+    keep = (x_root > 0.0) & (x_root < 0.1)
+    y, x_root = y[keep], x_root[keep]
+    start = np.stack([np.full_like(y, 0.95), y, np.zeros_like(y)], axis=1)
+
+    def f(p):
+        return sphere(p, r=1.0)
+
+    f0 = 1.0 - (0.95**2 + y * y)
+    f1 = 1.0 - (1.05**2 + y * y)
+    c = f0 / (f0 - f1)
+    root, rest, _ = _bracketed_roots(
+        f,
+        start,
+        start[:, 0].copy(),
+        np.full_like(y, 0.1),
+        np.zeros(len(y), dtype=np.int64),
+        c,
+        f1 - f0,
+        f0,
+        f1,
+        1e-13,
+        "cpu",
+    )
+    assert len(rest) == 0
+    np.testing.assert_allclose(0.95 + 0.1 * root, x_root + 0.95, atol=1e-12)
+
+
+def test_dual_contouring_gives_the_same_mesh_however_the_slabs_are_cut(monkeypatch):
+    monkeypatch.setattr(dual_contouring, "WORKERS", 1)
+    monkeypatch.setattr(dual_contouring, "SLAB_BLOCKS", 1 << 30)
+    one = polygonize(fig1_part, BOX, 64, method="dc")  # one slab, one thread
+    monkeypatch.setattr(dual_contouring, "WORKERS", 2)
+    monkeypatch.setattr(dual_contouring, "SLAB_BLOCKS", 200)  # a few block layers each, two at a time
+    many = polygonize(fig1_part, BOX, 64, method="dc")
+    assert many.n_faces == one.n_faces and many.n_vertices == one.n_vertices
+    np.testing.assert_allclose(np.sort(many.vertices, axis=0), np.sort(one.vertices, axis=0), atol=1e-12)
+    assert many.volume() == pytest.approx(one.volume(), abs=1e-12)

@@ -248,13 +248,20 @@ def dual_contour(
     ):
         counted = _Counted(bar) if bar is not None else None
 
+        def in_parallel(fn: Callable, items: list) -> list:
+            """[fn(item) for item in items] on the workers (one torch thread each)."""
+
+            def one(item: Any) -> Any:
+                with intra_op_threads(1 if workers > 1 else None):
+                    return fn(item)
+
+            return list(pool.map(one, items))
+
         def sample(slab: tuple[np.ndarray, int, int]) -> Samples | None:
-            with intra_op_threads(1 if workers > 1 else None):
-                return sample_blocks(f, axes, slab[0], block, dtype, device, counted)
+            return sample_blocks(f, axes, slab[0], block, dtype, device, counted)
 
         def contour(job: tuple) -> _Vertices:
-            with intra_op_threads(1 if workers > 1 else None):
-                return _slab(f, *job, lo, hi, spacing, cells, device, tol)
+            return _slab(f, *job, lo, hi, spacing, cells, device, tol)
 
         # slabs of whole block layers along x, ``workers`` at a time, each on its own thread (the
         # compiled loops and torch's kernels run without the GIL): the memory of the samples and
@@ -263,7 +270,7 @@ def dual_contour(
         parts, carry, offset = [], None, 0
         for first_slab in range(0, len(slabs), workers):
             group = slabs[first_slab : first_slab + workers]
-            samples = list(pool.map(sample, group))
+            samples = in_parallel(sample, group)
             if any(s is None for s in samples):
                 return empty
             jobs = []
@@ -273,12 +280,14 @@ def dual_contour(
                     continue
                 jobs.append((s, carry, first, end, offset))
                 carry, offset = _last_layer(s, end, offset)
-            parts.extend(pool.map(contour, jobs))
+            parts.extend(in_parallel(contour, jobs))
             del samples, jobs
-    if not parts or sum(len(p.quads) for p in parts) == 0:
-        warnings.warn("polygonize: f does not change sign inside the bounds; empty mesh", RuntimeWarning, stacklevel=2)
-        return empty
-    return _contour(f, parts, lo, hi, spacing, cells, device)
+        if not parts or sum(len(p.quads) for p in parts) == 0:
+            warnings.warn(
+                "polygonize: f does not change sign inside the bounds; empty mesh", RuntimeWarning, stacklevel=2
+            )
+            return empty
+        return _contour(f, parts, lo, hi, spacing, cells, device, in_parallel, workers)
 
 
 def _slabs(blocks: np.ndarray, block: int, ncell_x: int, limit: int) -> list[tuple[np.ndarray, int, int]]:
@@ -448,9 +457,12 @@ def _contour(
     spacing: np.ndarray,
     cells: tuple[int, int, int],
     device: Any,
+    in_parallel: Callable[[Callable, list], list],
+    workers: int,
 ) -> Mesh:
     """The mesh from all slabs' vertices and quads (``parts``, emptied): each quad cut at its
-    crossing into four triangles, unbiasing, folds, compaction, grad f."""
+    crossing into four triangles, unbiasing, folds, compaction, grad f (``in_parallel(fn, items)``
+    maps over the ``workers``)."""
     columns = [list(column) for column in zip(*parts)]
     parts.clear()
     whole = []
@@ -468,7 +480,9 @@ def _contour(
     quads[flip] = quads[flip, ::-1]
     del flip
     v = v._replace(quads=None)
-    x = _unbias(f, v.x, v.points, quads, v.gradient, v.point_gradient, v.cell, lo, hi, spacing, device)
+    x = _unbias(
+        f, v.x, v.points, quads, v.gradient, v.point_gradient, v.cell, lo, hi, spacing, device, in_parallel, workers
+    )
     v = v._replace(x=None, gradient=None, cell=None)  # not needed any more: memory for what follows
     # where faces of cells that are not confined intersect, the marching-cubes fans of the cells involved
     positive = v.node.astype(np.int64)  # the end of each quad's edge with f > 0 (pairs crossings on a face)
@@ -486,7 +500,10 @@ def _contour(
     # grad f: evaluated at the vertices in cells (sorted first), known at the crossings
     in_cell = int(np.searchsorted(used, n))
     gradient = np.empty_like(x)
-    gradient[:in_cell] = _value_and_grad(f, _gather_rows(x, np.arange(in_cell)), device)[1]
+    halves = np.array_split(np.arange(in_cell), workers)
+    grads = in_parallel(lambda rows: _value_and_grad(f, _gather_rows(x, rows), device)[1], halves)
+    gradient[:in_cell] = np.concatenate(grads)
+    del grads
     gradient[in_cell:] = point_gradient[used[in_cell:] - n]
     del point_gradient, used
     return Mesh(x, faces, _normals(gradient, x, faces), gradient=gradient)
@@ -527,6 +544,8 @@ def _unbias(
     hi: np.ndarray,
     spacing: np.ndarray,
     device: Any,
+    in_parallel: Callable[[Callable, list], list],
+    workers: int,
 ) -> np.ndarray:
     """Smooth vertices (V, 3) moved in place along the normal so that the triangles' mean distance to f = 0
     vanishes (each kept inside its cell: ``cell`` (V, 3) indices into the grid from ``lo`` to ``hi``,
@@ -541,7 +560,8 @@ def _unbias(
     centroid distance f / |grad f| (triangles whose vertices are both smooth); a vertex moves by
     the mean of what its triangles ask.  This removes the bias that would otherwise make the
     volume err by O(h^2) (the cylinders' holes of the Fig. 1 part) and halves the largest
-    distance to the surface.  In chunks of quads: the memory of the centroids stays bounded.
+    distance to the surface.  In chunks of quads, ``workers`` at a time through ``in_parallel(fn,
+    chunks)``: the memory of the centroids stays bounded.
     """
     known = np.isfinite(gradient).all(axis=1)
     if not known.any():
@@ -550,15 +570,21 @@ def _unbias(
     point_length = np.sqrt(np.einsum("ij,ij->i", point_gradient, point_gradient))
     total = np.zeros(len(x))
     count = np.zeros(len(x))
-    chunk = FINISH_CHUNK // 4  # four triangles per quad
-    for start in range(0, len(quads), chunk):
+    chunk = max(1, min(FINISH_CHUNK // 4, -(-len(quads) // workers)))  # four triangles per quad
+
+    def requests(start: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         rows = slice(start, start + chunk)
         centroid, first, second, mean_length = _triangle_centroids(
             quads[rows], points[rows], point_length[rows], x, length
         )
         with np.errstate(divide="ignore", invalid="ignore"):
             depth = _f64(f, centroid, device) / mean_length  # > 0: inside
-        _add_requests(first, second, np.where(np.isfinite(depth), 1.125 * depth, 0.0), total, count)
+        return first, second, np.where(np.isfinite(depth), 1.125 * depth, 0.0)
+
+    starts = list(range(0, len(quads), chunk))
+    for group in range(0, len(starts), workers):  # ``workers`` chunks at a time: their memory stays bounded
+        for first, second, ask in in_parallel(requests, starts[group : group + workers]):
+            _add_requests(first, second, ask, total, count)  # in chunk order: the same sums on any thread
     with np.errstate(divide="ignore", invalid="ignore"):
         step = np.where(count > 0, total / count / length, 0.0)
     del total, count

@@ -86,6 +86,7 @@ SLAB_BLOCKS = (
     1 << 14
 )  # leaf blocks sampled and contoured at a time, all workers together (about 200 MB of Hermite data)
 WORKERS = 2  # threads meshing slabs side by side on the CPU
+TRIM_QUADS = 1 << 21  # quads (about 400 MB of slab data) above which freed heap pages are handed back between passes
 FINISH_CHUNK = 1 << 18  # quads or triangles at a time in the whole-mesh passes (their temporaries' memory)
 INTERIOR = 1e-6  # cells: vertices kept this far inside their cells, crossings this far from the edges' ends
 
@@ -471,7 +472,10 @@ def _contour(
         column.clear()
     v = _Vertices(*whole)
     del columns, whole
-    _return_freed_memory()  # the slabs' copies
+    # freed pages go back to the system only for large meshes: it bounds the peak there, and costs
+    # their page faults again (a sixth of the time at 256^3) where memory is no concern
+    trim = _return_freed_memory if len(v.quads) > TRIM_QUADS else lambda: None
+    trim()  # the slabs' copies
     n = len(v.x)
     ncell = np.asarray(cells, dtype=np.int64)
     # quads oriented outward (toward f <= 0), in place; cut at their crossings (vertices n, n + 1, ...)
@@ -494,7 +498,7 @@ def _contour(
     del v, quads, corner, x  # what the folds need is in parts_left, handed over
     faces, x, _ = _without_folds(*parts_left, lo, spacing)
     del parts_left
-    _return_freed_memory()
+    trim()
     used = _compact(faces, len(x))  # faces renumbered in place
     x = np.take(x, used, axis=0)
     # grad f: evaluated at the vertices in cells (sorted first), known at the crossings

@@ -35,6 +35,8 @@ import warnings
 
 import numpy as np
 
+from .loops import _quad_halves
+
 UNFOLD_ROUNDS = 6  # rounds of "find intersecting faces, fan their vertices" (each grows the fanned set)
 PAIR_CHUNK = 1 << 16  # candidate pairs tested at a time (temporaries stay in cache)
 SLAB_FACES = 1 << 18  # faces searched for intersecting pairs at a time (memory of the search)
@@ -328,12 +330,7 @@ def _unfold(
     """
     n, nq = len(x), len(quads)
     verts = np.concatenate([x, crossing_points])
-    plain = np.empty((nq, 4, 3), dtype=np.int64)  # the halves (crossing, q_i, q_i+1) of every quad
-    plain[:, :, 0] = (n + np.arange(nq))[:, None]
-    plain[:, :, 1] = quads
-    plain[:, :3, 2] = quads[:, 1:]
-    plain[:, 3, 2] = quads[:, 0]
-    plain = plain.reshape(-1, 3)
+    plain = _quad_halves(quads, n)  # the halves (crossing, q_i, q_i+1) of every quad
     if confined.all():
         return plain, verts, 0
     exposed = np.concatenate([~confined, np.zeros(nq, dtype=bool)])

@@ -255,11 +255,13 @@ def _inner_cell(cell: np.ndarray, lo: np.ndarray, hi: np.ndarray, spacing: np.nd
 
 
 @_jit
-def _symmetric_eigen3(m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Eigenvalues (3,) ascending and unit eigenvectors (3, 3) (columns) of a symmetric 3 x 3 matrix,
-    by cyclic Jacobi rotations (a few sweeps; accurate to rounding, no LAPACK call per cell)."""
-    a = m.copy()
-    v = np.eye(3)
+def _symmetric_eigen3(a: np.ndarray, w: np.ndarray, u: np.ndarray) -> None:
+    """Eigenvalues ``w`` (3,) ascending and unit eigenvectors ``u`` (3, 3) (columns) of the symmetric
+    3 x 3 matrix ``a`` (overwritten), by cyclic Jacobi rotations (a few sweeps; accurate to
+    rounding; no LAPACK call and no allocation per cell)."""
+    for r in range(3):
+        for c in range(3):
+            u[r, c] = 1.0 if r == c else 0.0
     for _ in range(32):
         off = a[0, 1] * a[0, 1] + a[0, 2] * a[0, 2] + a[1, 2] * a[1, 2]
         if off == 0.0 or off <= 1e-36 * (a[0, 0] * a[0, 0] + a[1, 1] * a[1, 1] + a[2, 2] * a[2, 2]):
@@ -280,11 +282,15 @@ def _symmetric_eigen3(m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
                 apk, aqk = a[p, k], a[q, k]
                 a[p, k], a[q, k] = c * apk - s * aqk, s * apk + c * aqk
             for k in range(3):
-                vkp, vkq = v[k, p], v[k, q]
-                v[k, p], v[k, q] = c * vkp - s * vkq, s * vkp + c * vkq
-    w = np.array([a[0, 0], a[1, 1], a[2, 2]])
-    order = np.argsort(w)
-    return w[order], v[:, order]
+                ukp, ukq = u[k, p], u[k, q]
+                u[k, p], u[k, q] = c * ukp - s * ukq, s * ukp + c * ukq
+    for d in range(3):
+        w[d] = a[d, d]
+    for p, q in ((0, 1), (1, 2), (0, 1)):  # sort ascending, columns along
+        if w[q] < w[p]:
+            w[p], w[q] = w[q], w[p]
+            for k in range(3):
+                u[k, p], u[k, q] = u[k, q], u[k, p]
 
 
 @_jit
@@ -317,8 +323,8 @@ def _solve_qefs(
     rank = np.ones(n, dtype=np.int64)
     ata = np.empty((3, 3))
     rhs = np.empty(3)
-    v = np.empty(3)
-    av = np.empty(3)
+    w = np.empty(3)
+    u = np.empty((3, 3))
     box_lo = np.empty(3)
     box_hi = np.empty(3)
     pairs = ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))
@@ -331,33 +337,42 @@ def _solve_qefs(
         if shared[i]:  # a cell crossed by two sheets: the QEF's point could cross the other one
             rank[i] = 0
             continue
+        # (scalars, not arrays: they stay in registers)
+        a00, a01, a02, a11, a12, a22 = sums[i, 0], sums[i, 1], sums[i, 2], sums[i, 3], sums[i, 4], sums[i, 5]
+        m0, m1, m2 = mass[i, 0], mass[i, 1], mass[i, 2]
+        r0 = sums[i, 6] - (a00 * m0 + a01 * m1 + a02 * m2)
+        r1 = sums[i, 7] - (a01 * m0 + a11 * m1 + a12 * m2)
+        r2 = sums[i, 8] - (a02 * m0 + a12 * m1 + a22 * m2)
+        column, largest = 0, a00  # power iteration from the column of the largest diagonal entry
+        if a11 > largest:
+            column, largest = 1, a11
+        if a22 > largest:
+            column = 2
+        if column == 0:
+            v0, v1, v2 = a00, a01, a02
+        elif column == 1:
+            v0, v1, v2 = a01, a11, a12
+        else:
+            v0, v1, v2 = a02, a12, a22
+        for _ in range(4):
+            w0 = a00 * v0 + a01 * v1 + a02 * v2
+            w1 = a01 * v0 + a11 * v1 + a12 * v2
+            w2 = a02 * v0 + a12 * v1 + a22 * v2
+            scale = 1.0 / max(np.sqrt(w0 * w0 + w1 * w1 + w2 * w2), 1e-300)
+            v0, v1, v2 = w0 * scale, w1 * scale, w2 * scale
+        q = v0 * (a00 * v0 + a01 * v1 + a02 * v2) + v1 * (a01 * v0 + a11 * v1 + a12 * v2)
+        q += v2 * (a02 * v0 + a12 * v1 + a22 * v2)
+        if (a00 + a11 + a22) - q <= cutoff * q and q > 0:
+            t = (v0 * r0 + v1 * r1 + v2 * r2) / q
+            x[i, 0] = min(max(m0 + v0 * t, box_lo[0]), box_hi[0])
+            x[i, 1] = min(max(m1 + v1 * t, box_lo[1]), box_hi[1])
+            x[i, 2] = min(max(m2 + v2 * t, box_lo[2]), box_hi[2])
+            continue
         for k in range(6):
             r, c = pairs[k]
             ata[r, c] = ata[c, r] = sums[i, k]
-        for r in range(3):
-            rhs[r] = sums[i, 6 + r] - (ata[r, 0] * mass[i, 0] + ata[r, 1] * mass[i, 1] + ata[r, 2] * mass[i, 2])
-        column = 0
-        for d in (1, 2):
-            if ata[d, d] > ata[column, column]:
-                column = d
-        for d in range(3):
-            v[d] = ata[d, column]
-        for _ in range(4):
-            for r in range(3):
-                av[r] = ata[r, 0] * v[0] + ata[r, 1] * v[1] + ata[r, 2] * v[2]
-            scale = 1.0 / max(np.sqrt(av[0] * av[0] + av[1] * av[1] + av[2] * av[2]), 1e-300)
-            for d in range(3):
-                v[d] = av[d] * scale
-        for r in range(3):
-            av[r] = ata[r, 0] * v[0] + ata[r, 1] * v[1] + ata[r, 2] * v[2]
-        q = v[0] * av[0] + v[1] * av[1] + v[2] * av[2]
-        trace = ata[0, 0] + ata[1, 1] + ata[2, 2]
-        if trace - q <= cutoff * q and q > 0:
-            t = (v[0] * rhs[0] + v[1] * rhs[1] + v[2] * rhs[2]) / q
-            for d in range(3):
-                x[i, d] = min(max(x[i, d] + v[d] * t, box_lo[d]), box_hi[d])
-            continue
-        w, u = _symmetric_eigen3(ata)
+        rhs[0], rhs[1], rhs[2] = r0, r1, r2
+        _symmetric_eigen3(ata, w, u)
         kept = 0
         for j in range(3):
             if w[j] > cutoff * w[2]:
@@ -530,3 +545,17 @@ def _secant_step(
             moving[m] = r
             m += 1
     return moving[:m]
+
+
+@_jit
+def _quad_halves(quads: np.ndarray, first_crossing: int) -> np.ndarray:
+    """The four triangles (crossing, q_i, q_i+1) (4 Q, 3) of each quad (Q, 4), quad by quad; quad k's
+    crossing is vertex ``first_crossing + k``."""
+    nq = quads.shape[0]
+    out = np.empty((4 * nq, 3), dtype=np.int64)
+    for k in range(nq):
+        for i in range(4):
+            out[4 * k + i, 0] = first_crossing + k
+            out[4 * k + i, 1] = quads[k, i]
+            out[4 * k + i, 2] = quads[k, (i + 1) % 4]
+    return out

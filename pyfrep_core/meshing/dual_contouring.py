@@ -66,13 +66,16 @@ from .grid import CHUNK_POINTS, _check_memory, _chunk_points, _resolution, _retu
 from .loops import (
     _add_requests,
     _compact,
+    _edge_points,
     _edge_vertices,
     _gather_rows,
     _move_inside,
     _newton_into_cells,
+    _owned_quads,
     _qef_sums,
     _solve_qefs,
     _triangle_centroids,
+    _unit_normals,
 )
 from .mesh_type import Mesh
 from .octree import Samples, prune, sample_blocks
@@ -288,7 +291,7 @@ def dual_contour(
                 "polygonize: f does not change sign inside the bounds; empty mesh", RuntimeWarning, stacklevel=2
             )
             return empty
-        return _contour(f, parts, lo, hi, spacing, cells, device, in_parallel, workers)
+        return _contour(f, parts, lo, hi, spacing, device, in_parallel, workers)
 
 
 def _slabs(blocks: np.ndarray, block: int, ncell_x: int, limit: int) -> list[tuple[np.ndarray, int, int]]:
@@ -327,14 +330,9 @@ def _hermite(
     root, rest, c_rest = _bracketed_roots(f, start, start_axis, h, s.edge_axis, c, slope, s.f0, s.f1, step_tol, device)
     root[rest] = c_rest  # not converged in max_iter steps (a grazing edge): the best estimate
     root = np.clip(np.where(np.isfinite(root), root, c), INTERIOR, 1.0 - INTERIOR)
-    points = np.empty((3, len(start))).T  # component-first, as compiled kernels read points: no copy there
-    points[:] = start
-    points[rows, s.edge_axis] = start_axis + root * h
+    points = _edge_points(rows, start, s.edge_axis, start_axis, h, root)  # component-first (compiled kernels')
     _, g = _value_and_grad(f, points, device)
-    length = np.linalg.norm(g, axis=1)
-    good = np.isfinite(length) & (length > 0)
-    normal = np.zeros_like(g)
-    normal[good] = g[good] / length[good, None]
+    normal, good = _unit_normals(g, 1.0)
     # no gradient there: the edge's own direction, toward increasing f
     bad = np.flatnonzero(~good)
     normal[bad, s.edge_axis[bad]] = np.sign(s.f1[bad] - s.f0[bad])
@@ -346,9 +344,9 @@ class _Vertices(NamedTuple):
 
     x, mass, gradient (NaN where not smooth-projected) : (V, 3) per vertex; cell : (V, 3) int32 its cell;
     confined : (V,) bool its cell is proved free of folds (:func:`_confined`);
-    quads : (Q, 4) int64 counter-clockwise about +axis; axis : (Q,) int8 the edges' axes;
-    inside_start : (Q,) bool f > 0 at the edge's start; node : (Q, 3) int32 its start node; points : (Q, 3)
-    the edge's root; point_gradient : (Q, 3) grad f there.
+    quads : (Q, 4) int64 oriented outward (toward f <= 0); corner : (Q,) int64 flat key of the edge's
+    end with f > 0 (it pairs the crossings on a face); points : (Q, 3) the edge's root; point_gradient :
+    (Q, 3) grad f there.
     """
 
     x: np.ndarray
@@ -357,9 +355,7 @@ class _Vertices(NamedTuple):
     cell: np.ndarray
     confined: np.ndarray
     quads: np.ndarray
-    axis: np.ndarray
-    inside_start: np.ndarray
-    node: np.ndarray
+    corner: np.ndarray
     points: np.ndarray
     point_gradient: np.ndarray
 
@@ -412,21 +408,8 @@ def _slab(
     del sums
     x, smooth_gradient = _project_smooth(f, x, rank, vcell, lo, hi, spacing, device)
     # quads of the edges starting in the slab whose four cells lie in the grid
-    own = (vert >= 0).all(axis=1) & (s.edge_node[:, 0] >= first) & (s.edge_node[:, 0] < end)
-    part = _Vertices(
-        x,
-        mass,
-        smooth_gradient,
-        vcell.astype(np.int32),
-        np.repeat(_CONFINED[s.config], n_comp),
-        vert[own],
-        a[own].astype(np.int8),
-        s.f0[own] > 0,
-        s.edge_node[own].astype(np.int32),
-        points[own],
-        point_gradient[own],
-    )
-    return part
+    quads = _owned_quads(vert, s.edge_node, a, s.f0, points, point_gradient, first, end, ncell)
+    return _Vertices(x, mass, smooth_gradient, vcell.astype(np.int32), np.repeat(_CONFINED[s.config], n_comp), *quads)
 
 
 def _last_layer(s: Samples, end: int, offset: int) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray], int]:
@@ -456,7 +439,6 @@ def _contour(
     lo: np.ndarray,
     hi: np.ndarray,
     spacing: np.ndarray,
-    cells: tuple[int, int, int],
     device: Any,
     in_parallel: Callable[[Callable, list], list],
     workers: int,
@@ -477,25 +459,17 @@ def _contour(
     trim = _return_freed_memory if len(v.quads) > TRIM_QUADS else lambda: None
     trim()  # the slabs' copies
     n = len(v.x)
-    ncell = np.asarray(cells, dtype=np.int64)
-    # quads oriented outward (toward f <= 0), in place; cut at their crossings (vertices n, n + 1, ...)
+    # quads oriented outward (toward f <= 0); cut at their crossings (vertices n, n + 1, ...)
     quads = v.quads
-    flip = np.flatnonzero(~v.inside_start)
-    quads[flip] = quads[flip, ::-1]
-    del flip
     v = v._replace(quads=None)
     x = _unbias(
         f, v.x, v.points, quads, v.gradient, v.point_gradient, v.cell, lo, hi, spacing, device, in_parallel, workers
     )
     v = v._replace(x=None, gradient=None, cell=None)  # not needed any more: memory for what follows
     # where faces of cells that are not confined intersect, the marching-cubes fans of the cells involved
-    positive = v.node.astype(np.int64)  # the end of each quad's edge with f > 0 (pairs crossings on a face)
-    positive[np.arange(len(quads)), v.axis] += ~v.inside_start
-    corner = (positive[:, 0] * (ncell[1] + 1) + positive[:, 1]) * (ncell[2] + 1) + positive[:, 2]
-    del positive
-    parts_left = (quads, corner, v.points, x, v.mass, v.confined)
+    parts_left = (quads, v.corner, v.points, x, v.mass, v.confined)
     point_gradient = v.point_gradient
-    del v, quads, corner, x  # what the folds need is in parts_left, handed over
+    del v, quads, x  # what the folds need is in parts_left, handed over
     faces, x, _ = _without_folds(*parts_left, lo, spacing)
     del parts_left
     trim()

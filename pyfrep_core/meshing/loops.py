@@ -436,20 +436,19 @@ def _newton_into_cells(
 
 
 @_jit
-def _unit_normals(gradient: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """-grad f / |grad f| per row of ``gradient`` (V, 3), and whether |grad f| was finite and nonzero
-    (V,) (the normal is 0 where not)."""
+def _unit_normals(gradient: np.ndarray, sign: float) -> tuple[np.ndarray, np.ndarray]:
+    """``sign`` grad f / |grad f| per row of ``gradient`` (V, 3) (-1: outward normals), and whether
+    |grad f| was finite and nonzero (V,) (the normal is 0 where not)."""
     n = gradient.shape[0]
     normals = np.zeros((n, 3))
     good = np.empty(n, dtype=np.bool_)
     for i in range(n):
-        length = np.sqrt(
-            gradient[i, 0] * gradient[i, 0] + gradient[i, 1] * gradient[i, 1] + gradient[i, 2] * gradient[i, 2]
-        )
+        g0, g1, g2 = gradient[i, 0], gradient[i, 1], gradient[i, 2]
+        length = np.sqrt(g0 * g0 + g1 * g1 + g2 * g2)
         good[i] = np.isfinite(length) and length > 0
         if good[i]:
-            for d in range(3):
-                normals[i, d] = -gradient[i, d] / length
+            scale = sign / length
+            normals[i, 0], normals[i, 1], normals[i, 2] = g0 * scale, g1 * scale, g2 * scale
     return normals, good
 
 
@@ -559,3 +558,51 @@ def _quad_halves(quads: np.ndarray, first_crossing: int) -> np.ndarray:
             out[4 * k + i, 1] = quads[k, i]
             out[4 * k + i, 2] = quads[k, (i + 1) % 4]
     return out
+
+
+@_jit
+def _owned_quads(
+    vert: np.ndarray,
+    edge_node: np.ndarray,
+    edge_axis: np.ndarray,
+    f0: np.ndarray,
+    points: np.ndarray,
+    point_gradient: np.ndarray,
+    first: int,
+    end: int,
+    ncell: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The quads of a slab's crossing edges that start in its cell layers [first, end) along x and
+    have all four cells (``vert`` (E, 4) >= 0), oriented outward (toward f <= 0: reversed where f > 0
+    at the edge's end), with the flat key of each edge's end with f > 0 among the grid's nodes, its
+    crossing (Q, 3) and grad f there (Q, 3)."""
+    keep = np.empty(vert.shape[0], dtype=np.int64)
+    nq = 0
+    for e in range(vert.shape[0]):
+        if (
+            first <= edge_node[e, 0] < end
+            and vert[e, 0] >= 0
+            and vert[e, 1] >= 0
+            and vert[e, 2] >= 0
+            and vert[e, 3] >= 0
+        ):
+            keep[nq] = e
+            nq += 1
+    quads = np.empty((nq, 4), dtype=np.int64)
+    corner = np.empty(nq, dtype=np.int64)
+    crossing = np.empty((nq, 3))
+    crossing_gradient = np.empty((nq, 3))
+    positive = np.empty(3, dtype=np.int64)
+    for k in range(nq):
+        e = keep[k]
+        inside_start = f0[e] > 0
+        for q in range(4):
+            quads[k, q] = vert[e, q] if inside_start else vert[e, 3 - q]
+        for d in range(3):
+            positive[d] = edge_node[e, d]
+            crossing[k, d] = points[e, d]
+            crossing_gradient[k, d] = point_gradient[e, d]
+        if not inside_start:
+            positive[edge_axis[e]] += 1
+        corner[k] = (positive[0] * (ncell[1] + 1) + positive[1]) * (ncell[2] + 1) + positive[2]
+    return quads, corner, crossing, crossing_gradient

@@ -316,7 +316,7 @@ def _cubic_slope(r: np.ndarray, b1: np.ndarray, twice_b2: np.ndarray, b3: np.nda
 
 def _normals(gradient: np.ndarray, verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """Unit outward normals -grad f / |grad f|; the area-weighted face normal where grad f vanishes."""
-    normals, good = _unit_normals(np.ascontiguousarray(gradient, dtype=np.float64))
+    normals, good = _unit_normals(np.asarray(gradient, dtype=np.float64), -1.0)
     if good.all():
         return normals
     if len(faces):

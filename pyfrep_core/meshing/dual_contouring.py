@@ -35,10 +35,14 @@ itself or its neighbours (:func:`_confined`).  Only faces with a vertex in the o
 (sheets closer than a cell) are searched for intersecting pairs; there the cells involved fall
 back to marching cubes' polygon, fanned from their mass points (:mod:`pyfrep_core.meshing.folds`).
 
-Memory: the octree's leaf blocks are sampled and contoured in slabs along x of at most
-``SLAB_BLOCKS`` blocks (samples, Hermite data and QEFs of one slab at a time; the slab's last
-cell layer is carried to the next one's quads); what grows with the surface is the mesh itself
-and the whole-mesh passes (unbiasing, folds), which run in chunks.
+Memory and time: the octree's leaf blocks are sampled and contoured in slabs along x, at most
+``SLAB_BLOCKS`` blocks for all workers together (samples, Hermite data and QEFs of those slabs
+only; a slab's last cell layer is carried to the next one's quads); what grows with the surface
+is the mesh itself and the whole-mesh passes (unbiasing, folds), which run in chunks.  On the CPU
+``WORKERS`` threads take slabs (and the unbiasing's chunks) side by side: the per-edge, per-cell
+and per-triangle passes are compiled loops (:mod:`pyfrep_core.meshing.loops`) and a compiled
+model's kernels run without the GIL, so the two overlap.  The mesh does not depend on how the
+slabs are cut or on the threads (their sums are taken in order).
 
 >>> from pyfrep_core import block
 >>> m = dual_contour(lambda x: block(x, vertex=(-0.5, -0.5, -0.5), dx=1, dy=1, dz=1), ((-1.0,) * 3, (1.0,) * 3), 24)

@@ -177,7 +177,10 @@ class CompiledModel(Model):
         # one layout, component-first (x[:, 0] contiguous, so the fused loop vectorizes): strides are compiled in
         flat = x.reshape(-1, x.shape[-1])
         if flat.stride() != (1, flat.shape[0]):
-            flat = flat.t().contiguous().t()
+            fresh = torch.empty_strided(flat.shape, (1, flat.shape[0]), dtype=flat.dtype, device=flat.device)
+            # a view of a component-first base, as a reshaped component-first input is (dynamo guards a
+            # view's base too: a transposed copy's would compile a variant of its own)
+            flat = fresh.copy_(flat).view(flat.shape)  # differentiable, as the model
         if not flat.requires_grad:
             flat = flat.detach()  # not a view: guards would otherwise see the grid's 4-D base
         args = self._arguments(flat, params)

@@ -78,6 +78,7 @@ from .loops import (
     _owned_quads,
     _qef_sums,
     _solve_qefs,
+    _take_rows,
     _triangle_centroids,
     _unit_normals,
 )
@@ -482,11 +483,12 @@ def _contour(
     # grad f: evaluated at the vertices in cells (sorted first), known at the crossings
     in_cell = int(np.searchsorted(used, n))
     gradient = np.empty_like(x)
-    halves = np.array_split(np.arange(in_cell), workers)
-    grads = in_parallel(lambda rows: _value_and_grad(f, _gather_rows(x, rows), device)[1], halves)
-    gradient[:in_cell] = np.concatenate(grads)
-    del grads
-    gradient[in_cell:] = point_gradient[used[in_cell:] - n]
+
+    def evaluate(rows: np.ndarray) -> None:  # each worker writes its own rows
+        gradient[rows[0] : rows[-1] + 1] = _value_and_grad(f, _gather_rows(x, rows), device)[1]
+
+    in_parallel(evaluate, [rows for rows in np.array_split(np.arange(in_cell), workers) if len(rows)])
+    _take_rows(point_gradient, used[in_cell:] - n, gradient[in_cell:])
     del point_gradient, used
     return Mesh(x, faces, _normals(gradient, x, faces), gradient=gradient)
 

@@ -436,6 +436,14 @@ def _newton_into_cells(
 
 
 @_jit
+def _take_rows(source: np.ndarray, rows: np.ndarray, out: np.ndarray) -> None:
+    """out[k] = source[rows[k]] for rows (K,) of ``source`` (N, 3), into ``out`` (K, 3) (no temporaries)."""
+    for k in range(rows.shape[0]):
+        for d in range(3):
+            out[k, d] = source[rows[k], d]
+
+
+@_jit
 def _unit_normals(gradient: np.ndarray, sign: float) -> tuple[np.ndarray, np.ndarray]:
     """``sign`` grad f / |grad f| per row of ``gradient`` (V, 3) (-1: outward normals), and whether
     |grad f| was finite and nonzero (V,) (the normal is 0 where not)."""

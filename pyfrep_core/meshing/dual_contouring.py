@@ -73,8 +73,7 @@ from .loops import (
     _edge_points,
     _edge_vertices,
     _gather_rows,
-    _move_inside,
-    _newton_into_cells,
+    _move_in_cells,
     _owned_quads,
     _qef_sums,
     _solve_qefs,
@@ -511,7 +510,10 @@ def _project_smooth(
     if len(smooth) == 0:
         return x, gradient
     value, g = _value_and_grad(f, _gather_rows(x, smooth), device)
-    _newton_into_cells(x, smooth, value, g, cell, lo, hi, spacing, INTERIOR)
+    g2 = np.einsum("ij,ij->i", g, g)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        scale = np.where(g2 > 0, value / g2, 0.0)
+    _move_in_cells(x, smooth, scale, g, cell, lo, hi, spacing, INTERIOR, 1e-9)  # Newton: only within the cell
     gradient[smooth] = g
     return x, gradient
 
@@ -572,5 +574,5 @@ def _unbias(
     with np.errstate(divide="ignore", invalid="ignore"):
         step = np.where(count > 0, total / count / length, 0.0)
     del total, count
-    _move_inside(x, gradient, step, cell, lo, hi, spacing, INTERIOR)  # outward: -grad f
+    _move_in_cells(x, np.arange(len(x)), step, gradient, cell, lo, hi, spacing, INTERIOR, -1.0)  # outward: -grad f
     return x

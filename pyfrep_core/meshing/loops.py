@@ -225,28 +225,6 @@ def _add_requests(first: np.ndarray, second: np.ndarray, ask: np.ndarray, total:
 
 
 @_jit
-def _move_inside(
-    x: np.ndarray,
-    gradient: np.ndarray,
-    step: np.ndarray,
-    cell: np.ndarray,
-    lo: np.ndarray,
-    hi: np.ndarray,
-    spacing: np.ndarray,
-    margin: float,
-) -> None:
-    """x[v] -= step[v] grad f[v] (in place) where ``step`` is finite and nonzero, clipped to the vertex's cell
-    ``cell`` (V, 3) less ``margin`` of a cell on each side (the grid from ``lo`` to ``hi``)."""
-    for v in range(x.shape[0]):
-        if step[v] == 0.0 or not np.isfinite(step[v]):
-            continue
-        for d in range(3):
-            inner_lo, inner_hi = _inner_cell(cell[v], lo, hi, spacing, margin, d)
-            moved = x[v, d] - step[v] * gradient[v, d]
-            x[v, d] = min(max(moved, inner_lo), inner_hi)
-
-
-@_jit
 def _inner_cell(cell: np.ndarray, lo: np.ndarray, hi: np.ndarray, spacing: np.ndarray, margin: float, d: int) -> tuple:
     """Axis d's bounds of cell (3,) of the grid from ``lo`` to ``hi``, less ``margin`` of a cell on each side."""
     cell_lo = lo[d] + cell[d] * spacing[d]
@@ -403,36 +381,36 @@ def _solve_qefs(
 
 
 @_jit
-def _newton_into_cells(
+def _move_in_cells(
     x: np.ndarray,
     rows: np.ndarray,
-    value: np.ndarray,
+    scale: np.ndarray,
     gradient: np.ndarray,
     cell: np.ndarray,
     lo: np.ndarray,
     hi: np.ndarray,
     spacing: np.ndarray,
     margin: float,
+    slack: float,
 ) -> None:
-    """x[rows] (in place) moved by one Newton step -f grad f / |grad f|^2 (f and grad f at x[rows]:
-    ``value`` (K,), ``gradient`` (K, 3)) where the step is finite and lands in the vertex's cell
-    ``cell[rows]`` less ``margin`` of a cell (within 1e-9 of a cell: then clipped to it)."""
+    """x[rows[k]] -= scale[k] gradient[k] (in place), clipped to the vertex's cell ``cell[rows[k]]`` less
+    ``margin`` of a cell (the grid from ``lo`` to ``hi``); skipped where ``scale`` is 0 or not finite,
+    and, with ``slack`` >= 0, where the move would leave that box by more than ``slack`` cells."""
     for k in range(rows.shape[0]):
+        s = scale[k]
+        if s == 0.0 or not np.isfinite(s):
+            continue
         i = rows[k]
-        g2 = gradient[k, 0] * gradient[k, 0] + gradient[k, 1] * gradient[k, 1] + gradient[k, 2] * gradient[k, 2]
-        scale = value[k] / g2 if g2 > 0 else 0.0
         ok = True
-        y = np.empty(3)
         for d in range(3):
-            step = scale * gradient[k, d]
-            y[d] = x[i, d] - (step if np.isfinite(step) else 0.0)
+            y = x[i, d] - s * gradient[k, d]
             inner_lo, inner_hi = _inner_cell(cell[i], lo, hi, spacing, margin, d)
-            slack = 1e-9 * spacing[d]
-            ok &= np.isfinite(y[d]) and y[d] >= inner_lo - slack and y[d] <= inner_hi + slack
+            if slack >= 0.0:
+                ok &= np.isfinite(y) and inner_lo - slack * spacing[d] <= y <= inner_hi + slack * spacing[d]
         if ok:
             for d in range(3):
                 inner_lo, inner_hi = _inner_cell(cell[i], lo, hi, spacing, margin, d)
-                x[i, d] = min(max(y[d], inner_lo), inner_hi)
+                x[i, d] = min(max(x[i, d] - s * gradient[k, d], inner_lo), inner_hi)
 
 
 @_jit

@@ -89,9 +89,7 @@ __all__ = ["dual_contour", "SINGULAR_CUTOFF", "LEAF_BLOCK"]
 
 SINGULAR_CUTOFF = 0.05  # relative eigenvalue of A^T A below which a direction is free (a crease of > 25 degrees stays)
 LEAF_BLOCK = 4  # cells per leaf block edge: the octree's finest interval test
-SLAB_BLOCKS = (
-    1 << 14
-)  # leaf blocks sampled and contoured at a time, all workers together (about 200 MB of Hermite data)
+SLAB_BLOCKS = 1 << 14  # leaf blocks sampled and contoured at a time by all workers (about 200 MB)
 WORKERS = 2  # threads meshing slabs side by side on the CPU
 TRIM_QUADS = 1 << 21  # quads (about 400 MB of slab data) above which freed heap pages are handed back between passes
 FINISH_CHUNK = 1 << 18  # quads or triangles at a time in the whole-mesh passes (their temporaries' memory)
@@ -388,15 +386,13 @@ def _slab(
     points, normal, point_gradient = _hermite(f, s, lo, spacing, device, tol)
     ncell = np.asarray(cells, dtype=np.int64)
     # vertices: one per (cell, component)
-    n_comp = _N_COMPONENTS[s.config].astype(np.int64)
-    first_vertex = np.concatenate([[0], np.cumsum(n_comp)])
-    n_vert = int(first_vertex[-1])
+    n_comp, first_vertex, n_vert = _numbering(s, offset)
     # the cells to look edges' neighbours up in: the carried layer (keys below the slab's), then the slab's
     if carry is None:
         carry = (np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.uint8))
     keys = np.concatenate([carry[0], s.cell_key])
     config = np.concatenate([carry[2], s.config])
-    base = np.concatenate([carry[1], first_vertex[:-1] + offset])  # global first vertex of each cell
+    base = np.concatenate([carry[1], first_vertex])  # global first vertex of each cell
     # the up to four cells around each crossing edge, and the vertex of the edge's component there
     a = s.edge_axis
     vert = _edge_vertices(keys, config, base, s.edge_node, a, ncell, _COMPONENT)
@@ -419,10 +415,17 @@ def _slab(
 def _last_layer(s: Samples, end: int, offset: int) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray], int]:
     """A slab's carry for the next one (its last cell layer ``end - 1``: flat keys, global first vertex,
     configuration), its vertices numbered from ``offset``, and the next slab's first vertex."""
+    _, first_vertex, n_vert = _numbering(s, offset)
+    last = s.cell[:, 0] == end - 1
+    return (s.cell_key[last], first_vertex[last], s.config[last]), offset + n_vert
+
+
+def _numbering(s: Samples, offset: int) -> tuple[np.ndarray, np.ndarray, int]:
+    """A slab's vertices, one per surface component of each mixed cell: their number per cell (C,),
+    each cell's first vertex numbered from ``offset`` (C,), and their count."""
     n_comp = _N_COMPONENTS[s.config].astype(np.int64)
     first_vertex = np.cumsum(n_comp) - n_comp + offset
-    last = s.cell[:, 0] == end - 1
-    return (s.cell_key[last], first_vertex[last], s.config[last]), offset + int(n_comp.sum())
+    return n_comp, first_vertex, int(n_comp.sum())
 
 
 class _Counted:

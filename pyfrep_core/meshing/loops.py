@@ -205,13 +205,19 @@ def _triangle_centroids(
 
 
 @_jit
-def _gather_rows(x: np.ndarray, rows: np.ndarray) -> np.ndarray:
-    """x[rows] (K, 3), component-first (as compiled kernels read points)."""
-    out = np.empty((3, rows.shape[0]))
+def _take_rows(source: np.ndarray, rows: np.ndarray, out: np.ndarray) -> None:
+    """out[k] = source[rows[k]] for rows (K,) of ``source`` (N, 3), into ``out`` (K, 3) (no temporaries)."""
     for k in range(rows.shape[0]):
         for d in range(3):
-            out[d, k] = x[rows[k], d]
-    return out.T
+            out[k, d] = source[rows[k], d]
+
+
+@_jit
+def _gather_rows(x: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """x[rows] (K, 3), component-first (as compiled kernels read points)."""
+    out = np.empty((3, rows.shape[0])).T
+    _take_rows(x, rows, out)
+    return out
 
 
 @_jit
@@ -411,14 +417,6 @@ def _move_in_cells(
             for d in range(3):
                 inner_lo, inner_hi = _inner_cell(cell[i], lo, hi, spacing, margin, d)
                 x[i, d] = min(max(x[i, d] - s * gradient[k, d], inner_lo), inner_hi)
-
-
-@_jit
-def _take_rows(source: np.ndarray, rows: np.ndarray, out: np.ndarray) -> None:
-    """out[k] = source[rows[k]] for rows (K,) of ``source`` (N, 3), into ``out`` (K, 3) (no temporaries)."""
-    for k in range(rows.shape[0]):
-        for d in range(3):
-            out[k, d] = source[rows[k], d]
 
 
 @_jit

@@ -8,7 +8,7 @@ from scipy.spatial.transform import Rotation
 
 from pyfrep_core import polygonize, sphere
 from pyfrep_core.meshing import dual_contouring
-from pyfrep_core.meshing.loops import _classify_blocks, _compact, _edge_points, _symmetric_eigen3
+from pyfrep_core.meshing.loops import _classify_blocks, _compact, _edge_points, _symmetric_eigen3, _unbias_steps
 from pyfrep_core.meshing.roots import _bracketed_roots
 from pyfrep_core.models import fig1_part
 
@@ -128,6 +128,26 @@ def test_bracketed_roots_find_the_roots_of_a_sphere_on_its_edges():
     )
     assert len(rest) == 0
     np.testing.assert_allclose(0.95 + 0.1 * root, x_root + 0.95, atol=1e-12)
+
+
+@pytest.mark.parametrize("h", [0.1, 0.05, 0.025])
+def test_unbias_steps_ask_for_nine_eighths_of_the_centroid_depth_on_a_sphere(h):
+    # one quad on the unit sphere f = 1 - |x|^2 (grad f = -2 x, inward): vertices at (1, +-h, +-h)
+    # projected, the crossing at (1, 0, 0); each vertex is in two triangles, so it is asked for the
+    # mean of their two centroids' 9/8 depth; the chord formula is exact to O(h^2) relatively
+    corners = np.array([[1.0, -h, -h], [1.0, h, -h], [1.0, h, h], [1.0, -h, h]])
+    x = corners / np.linalg.norm(corners, axis=1, keepdims=True)
+    crossing = np.array([[1.0, 0.0, 0.0]])
+    scale = _unbias_steps(np.array([[0, 1, 2, 3]]), crossing, -2 * crossing, x, -2 * x)
+    exact = [1 - np.linalg.norm((crossing[0] + x[i] + x[(i + 1) % 4]) / 3) for i in range(4)]
+    want = [1.125 * (exact[i - 1] + exact[i]) / 2 for i in range(4)]
+    asked = scale * np.linalg.norm(-2 * x, axis=1)  # back to length units
+    np.testing.assert_allclose(asked, want, rtol=2 * h**2)
+    smooth_gradient = -2 * x
+    smooth_gradient[0] = np.nan  # a vertex that is not smooth is neither moved nor asked
+    scale = _unbias_steps(np.array([[0, 1, 2, 3]]), crossing, -2 * crossing, x, smooth_gradient)
+    assert scale[0] == 0.0
+    np.testing.assert_allclose(scale[2] * 2, want[2], rtol=2 * h**2)  # its two triangles do not touch vertex 0
 
 
 def test_dual_contouring_gives_the_same_mesh_however_the_slabs_are_cut(monkeypatch):

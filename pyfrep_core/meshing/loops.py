@@ -174,34 +174,46 @@ def _qef_sums(vert: np.ndarray, normal: np.ndarray, points: np.ndarray, offset: 
 
 
 @_jit
-def _triangle_centroids(
-    quads: np.ndarray, points: np.ndarray, point_length: np.ndarray, x: np.ndarray, length: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The triangles (crossing, q_i, q_i+1) of quads (Q, 4) whose two cell vertices are both smooth
-    (finite ``length`` = |grad f|): their centroids (T, 3) (component-first, as compiled kernels read
-    points), their two vertices (T,) each, and the mean |grad f| of their corners (T,); half i of
-    every quad first, then half i + 1 (as the quads' columns)."""
-    nq = quads.shape[0]
-    n = 0
-    for half in range(4):
-        for q in range(nq):
-            n += np.isfinite(length[quads[q, half]]) and np.isfinite(length[quads[q, (half + 1) % 4]])
-    centroid = np.empty((3, n))
-    first = np.empty(n, dtype=np.int64)
-    second = np.empty(n, dtype=np.int64)
-    mean_length = np.empty(n)
-    t = 0
-    for half in range(4):
-        for q in range(nq):
-            a, b = quads[q, half], quads[q, (half + 1) % 4]
-            if not (np.isfinite(length[a]) and np.isfinite(length[b])):
-                continue
+def _unbias_steps(
+    quads: np.ndarray, points: np.ndarray, point_gradient: np.ndarray, x: np.ndarray, gradient: np.ndarray
+) -> np.ndarray:
+    """The moves (V,) in units of grad f (the move is ``scale * gradient``, > 0: inward) that the
+    triangles (crossing, q_i, q_i+1) of quads (Q, 4) whose two cell vertices are both smooth (finite
+    ``gradient``) ask of them: each asks both its vertices for 9/8 of its centroid's depth (> 0:
+    inside), a vertex takes the mean of what it is asked.  The depth of the midpoint of a chord p q
+    of a surface with unit inward normals m_p, m_q is (q - p) . (m_p - m_q) / 8 to leading order; the
+    chord error of a triangle is the quadratic a l1 l2 + b l2 l3 + c l3 l1 in barycentric
+    coordinates, 4 times that at each edge's midpoint, so (a + b + c) / 9 at the centroid.  Summed in
+    the quads' order."""
+    n = x.shape[0]
+    total = np.zeros(n)
+    count = np.zeros(n)
+    unit = np.empty((5, 3))  # the quad's four vertices' unit normals, then the crossing's
+    for q in range(quads.shape[0]):
+        for k in range(5):
+            g = point_gradient[q] if k == 4 else gradient[quads[q, k]]
+            inverse = 1.0 / np.sqrt(g[0] * g[0] + g[1] * g[1] + g[2] * g[2])
             for d in range(3):
-                centroid[d, t] = (points[q, d] + x[a, d] + x[b, d]) / 3.0
-            first[t], second[t] = a, b
-            mean_length[t] = (point_length[q] + length[a] + length[b]) / 3.0
-            t += 1
-    return centroid.T, first, second, mean_length
+                unit[k, d] = g[d] * inverse  # NaN: not smooth; inf or NaN: no gradient at the crossing
+        for half in range(4):
+            i, j = half, (half + 1) % 4
+            a, b = quads[q, i], quads[q, j]
+            chords = 0.0  # the sum over the triangle's edges of (q - p) . (m_p - m_q)
+            for d in range(3):
+                chords += (x[a, d] - points[q, d]) * (unit[4, d] - unit[i, d])
+                chords += (x[b, d] - x[a, d]) * (unit[i, d] - unit[j, d])
+                chords += (points[q, d] - x[b, d]) * (unit[j, d] - unit[4, d])
+            if not np.isfinite(chords):
+                continue
+            ask = 1.125 * 4.0 / 9.0 * chords / 8.0
+            total[a] += ask
+            total[b] += ask
+            count[a] += 1.0
+            count[b] += 1.0
+    for v in range(n):
+        g = gradient[v]
+        total[v] = total[v] / count[v] / np.sqrt(g[0] * g[0] + g[1] * g[1] + g[2] * g[2]) if count[v] > 0 else 0.0
+    return total
 
 
 @_jit
@@ -218,16 +230,6 @@ def _gather_rows(x: np.ndarray, rows: np.ndarray) -> np.ndarray:
     out = np.empty((3, rows.shape[0])).T
     _take_rows(x, rows, out)
     return out
-
-
-@_jit
-def _add_requests(first: np.ndarray, second: np.ndarray, ask: np.ndarray, total: np.ndarray, count: np.ndarray) -> None:
-    """Each triangle's request ``ask`` (T,) added to both its vertices' ``total``, and 1 to their ``count``."""
-    for t in range(ask.shape[0]):
-        total[first[t]] += ask[t]
-        total[second[t]] += ask[t]
-        count[first[t]] += 1.0
-        count[second[t]] += 1.0
 
 
 @_jit

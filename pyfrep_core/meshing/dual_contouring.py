@@ -35,14 +35,14 @@ itself or its neighbours (:func:`_confined`).  Only faces with a vertex in the o
 (sheets closer than a cell) are searched for intersecting pairs; there the cells involved fall
 back to marching cubes' polygon, fanned from their mass points (:mod:`pyfrep_core.meshing.folds`).
 
-Memory and time: the octree's leaf blocks are sampled and contoured in slabs along x, at most
-``SLAB_BLOCKS`` blocks for all workers together (samples, Hermite data and QEFs of those slabs
-only; a slab's last cell layer is carried to the next one's quads); what grows with the surface
-is the mesh itself and the whole-mesh passes (unbiasing, folds).  On the CPU
-``WORKERS`` threads take slabs side by side: the per-edge, per-cell
-and per-triangle passes are compiled loops (:mod:`pyfrep_core.meshing.loops`) and a compiled
-model's kernels run without the GIL, so the two overlap.  The mesh does not depend on how the
-slabs are cut or on the threads (their sums are taken in order).
+Memory and time: the octree's leaf blocks are sampled and contoured in slabs along x, about
+``SLAB_BLOCKS`` blocks for all workers together, in equal shares (samples, Hermite data and QEFs
+of those slabs only; a slab's last cell layer is carried to the next one's quads); what grows
+with the surface is the mesh itself and the whole-mesh passes (unbiasing, folds).  On the CPU
+``WORKERS`` threads take slabs side by side: the per-edge, per-cell and per-triangle passes are
+compiled loops (:mod:`pyfrep_core.meshing.loops`) and a compiled model's kernels run without the
+GIL, so the two overlap.  The mesh does not depend on how the slabs are cut or on the threads
+(their sums are taken in order).
 
 >>> from pyfrep_core import block
 >>> m = dual_contour(lambda x: block(x, vertex=(-0.5, -0.5, -0.5), dx=1, dy=1, dz=1), ((-1.0,) * 3, (1.0,) * 3), 24)
@@ -242,7 +242,7 @@ def dual_contour(
     if not tree.certified:
         _check_memory(res, dtype)  # every block is sampled: the dense grid's memory
     workers = WORKERS if torch.device(device).type == "cpu" else 1
-    slabs = _slabs(tree.blocks, block, cells[0], max(1, min(SLAB_BLOCKS // workers, -(-len(tree.blocks) // workers))))
+    slabs = _slabs(tree.blocks, block, cells[0], max(1, SLAB_BLOCKS // workers), workers)
     per_chunk = max(1, _chunk_points(f, CHUNK_POINTS) // (block + 1) ** 3)  # sample_blocks' chunks
     n_chunks = sum(-(-len(part) // per_chunk) for part, _, _ in slabs)
     empty = Mesh(np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64), np.zeros((0, 3)))
@@ -294,21 +294,29 @@ def dual_contour(
         return _contour(f, parts, lo, hi, spacing, device, in_parallel, workers)
 
 
-def _slabs(blocks: np.ndarray, block: int, ncell_x: int, limit: int) -> list[tuple[np.ndarray, int, int]]:
-    """The leaf blocks in slabs of whole layers along x of at most ``limit`` blocks (at least one
-    layer), each with its first cell layer and the end of its cell layers."""
+def _slabs(blocks: np.ndarray, block: int, ncell_x: int, limit: int, workers: int) -> list[tuple[np.ndarray, int, int]]:
+    """The leaf blocks in slabs of whole layers along x, each with its first cell layer and the end of
+    its cell layers: a multiple of ``workers`` slabs of about equal numbers of blocks (the slabs of a
+    group end together), about ``limit`` blocks or fewer each (at least one layer).
+
+    >>> blocks = np.array([(x, y, 0) for x in range(4) for y in range(x + 1)])  # 1, 2, 3, 4 blocks a layer
+    >>> [(len(part), first, end) for part, first, end in _slabs(blocks, 4, 16, 100, 2)]
+    [(6, 0, 12), (4, 12, 16)]
+    """
     order = np.argsort(blocks[:, 0], kind="stable")
     blocks = blocks[order]
     layer, start = np.unique(blocks[:, 0], return_index=True)
-    bounds = np.append(start, len(blocks))
-    out, first = [], 0
-    while first < len(layer):
-        last = first + 1
-        while last < len(layer) and bounds[last + 1] - bounds[first] <= limit:
-            last += 1
-        part = blocks[bounds[first] : bounds[last]]
+    before = np.append(start, len(blocks))  # blocks before each layer, and all of them
+    count = min(len(layer), -(-len(blocks) // (limit * workers)) * workers)
+    # cut at the layer boundaries nearest to equal shares
+    share = len(blocks) * np.arange(1, count) / count
+    cut = np.clip(np.searchsorted(before, share), 1, len(layer))
+    nearer_below = share - before[cut - 1] < before[cut] - share
+    cut = np.unique(np.concatenate([[0], np.where(nearer_below, cut - 1, cut), [len(layer)]]))
+    out = []
+    for first, last in zip(cut[:-1], cut[1:]):
+        part = blocks[before[first] : before[last]]
         out.append((part, int(layer[first]) * block, min(int(layer[last - 1] + 1) * block, ncell_x)))
-        first = last
     return out
 
 

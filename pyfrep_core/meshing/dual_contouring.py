@@ -56,7 +56,7 @@ import contextlib
 import threading
 import warnings
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -252,14 +252,18 @@ def dual_contour(
     ):
         counted = _Counted(bar) if bar is not None else None
 
-        def in_parallel(fn: Callable, items: list) -> list:
-            """[fn(item) for item in items] on the workers (one torch thread each)."""
+        def on_worker(fn: Callable, *args: Any) -> Future:
+            """fn(*args) on a worker (one torch thread each)."""
 
-            def one(item: Any) -> Any:
+            def one() -> Any:
                 with intra_op_threads(1 if workers > 1 else None):
-                    return fn(item)
+                    return fn(*args)
 
-            return list(pool.map(one, items))
+            return pool.submit(one)
+
+        def in_parallel(fn: Callable, items: list) -> list:
+            """[fn(item) for item in items] on the workers."""
+            return [job.result() for job in [on_worker(fn, item) for item in items]]
 
         def sample(slab: tuple[np.ndarray, int, int]) -> Samples | None:
             return sample_blocks(f, axes, slab[0], block, dtype, device, counted)
@@ -291,7 +295,7 @@ def dual_contour(
                 "polygonize: f does not change sign inside the bounds; empty mesh", RuntimeWarning, stacklevel=2
             )
             return empty
-        return _contour(f, parts, lo, hi, spacing, device, in_parallel, workers)
+        return _contour(f, parts, lo, hi, spacing, device, on_worker)
 
 
 def _slabs(blocks: np.ndarray, block: int, ncell_x: int, limit: int, workers: int) -> list[tuple[np.ndarray, int, int]]:
@@ -453,12 +457,11 @@ def _contour(
     hi: np.ndarray,
     spacing: np.ndarray,
     device: Any,
-    in_parallel: Callable[[Callable, list], list],
-    workers: int,
+    on_worker: Callable[..., Future],
 ) -> Mesh:
     """The mesh from all slabs' vertices and quads (``parts``, emptied): each quad cut at its
-    crossing into four triangles, unbiasing, folds, compaction, grad f (``in_parallel(fn, items)``
-    maps over the ``workers``)."""
+    crossing into four triangles, unbiasing, folds, compaction, grad f (``on_worker(fn, *args)``
+    runs on a worker while this thread goes on)."""
     columns = [list(column) for column in zip(*parts)]
     parts.clear()
     whole = []
@@ -476,27 +479,29 @@ def _contour(
     quads = v.quads
     v = v._replace(quads=None)
     x = _unbias(v.x, v.points, quads, v.gradient, v.point_gradient, v.cell, lo, hi, spacing)
+    # grad f at the vertices in cells, on a worker while the folds are searched here (the few
+    # vertices that a fold moves to their mass points get theirs again after)
+    cell_gradient = on_worker(_value_and_grad, f, x, device)
     v = v._replace(x=None, gradient=None, cell=None)  # not needed any more: memory for what follows
     # where faces of cells that are not confined intersect, the marching-cubes fans of the cells involved
     parts_left = (quads, v.corner, v.points, x, v.mass, v.confined)
     point_gradient = v.point_gradient
-    del v, quads, x  # what the folds need is in parts_left, handed over
-    faces, x, _ = _without_folds(*parts_left, lo, spacing)
+    del v, quads  # what the folds need is in parts_left, handed over
+    faces, verts, _ = _without_folds(*parts_left, lo, spacing)
     del parts_left
     trim()
-    used = _compact(faces, len(x))  # faces renumbered in place
-    x = np.take(x, used, axis=0)
-    # grad f: evaluated at the vertices in cells (sorted first), known at the crossings
-    in_cell = int(np.searchsorted(used, n))
-    gradient = np.empty_like(x)
-
-    def evaluate(rows: np.ndarray) -> None:  # each worker writes its own rows
-        gradient[rows[0] : rows[-1] + 1] = _value_and_grad(f, _gather_rows(x, rows), device)[1]
-
-    in_parallel(evaluate, [rows for rows in np.array_split(np.arange(in_cell), workers) if len(rows)])
-    _take_rows(point_gradient, used[in_cell:] - n, gradient[in_cell:])
+    used = _compact(faces, len(verts))  # faces renumbered in place
+    verts = np.take(verts, used, axis=0)
+    in_cell = int(np.searchsorted(used, n))  # vertices in cells sorted first, then crossings
+    gradient = np.empty_like(verts)
+    _take_rows(cell_gradient.result()[1], used[:in_cell], gradient[:in_cell])
+    moved = np.flatnonzero((verts[:in_cell] != np.take(x, used[:in_cell], axis=0)).any(axis=1))
+    del x
+    if len(moved):
+        gradient[moved] = _value_and_grad(f, verts[moved], device)[1]
+    _take_rows(point_gradient, used[in_cell:] - n, gradient[in_cell:])  # known at the crossings
     del point_gradient, used
-    return Mesh(x, faces, _normals(gradient, x, faces), gradient=gradient)
+    return Mesh(verts, faces, _normals(gradient, verts, faces), gradient=gradient)
 
 
 def _project_smooth(

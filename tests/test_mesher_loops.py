@@ -152,10 +152,10 @@ def test_unbias_steps_ask_for_nine_eighths_of_the_centroid_depth_on_a_sphere(h):
 
 def test_dual_contouring_gives_the_same_mesh_however_the_slabs_are_cut(monkeypatch):
     monkeypatch.setattr(dual_contouring, "WORKERS", 1)
-    monkeypatch.setattr(dual_contouring, "SLAB_BLOCKS", 1 << 30)
+    monkeypatch.setattr(dual_contouring, "SLAB_POINTS", 1 << 40)
     one = polygonize(fig1_part, BOX, 64, method="dc")  # one slab, one thread
     monkeypatch.setattr(dual_contouring, "WORKERS", 2)
-    monkeypatch.setattr(dual_contouring, "SLAB_BLOCKS", 200)  # a few block layers each, two at a time
+    monkeypatch.setattr(dual_contouring, "SLAB_POINTS", 20000)  # a block layer or two each, two at a time
     many = polygonize(fig1_part, BOX, 64, method="dc")
     assert many.n_faces == one.n_faces and many.n_vertices == one.n_vertices
     np.testing.assert_allclose(np.sort(many.vertices, axis=0), np.sort(one.vertices, axis=0), atol=1e-12)

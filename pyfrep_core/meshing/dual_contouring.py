@@ -36,7 +36,7 @@ itself or its neighbours (:func:`_confined`).  Only faces with a vertex in the o
 back to marching cubes' polygon, fanned from their mass points (:mod:`pyfrep_core.meshing.folds`).
 
 Memory and time: the octree's leaf blocks are sampled and contoured in slabs along x, about
-``SLAB_BLOCKS`` blocks for all workers together, in equal shares (samples, Hermite data and QEFs
+``SLAB_POINTS`` samples for all workers together, in equal shares (samples, Hermite data and QEFs
 of those slabs only; a slab's last cell layer is carried to the next one's quads); what grows
 with the surface is the mesh itself and the whole-mesh passes (unbiasing, folds).  On the CPU
 ``WORKERS`` threads take slabs side by side: the per-edge, per-cell and per-triangle passes are
@@ -88,7 +88,9 @@ __all__ = ["dual_contour", "SINGULAR_CUTOFF", "LEAF_BLOCK"]
 
 SINGULAR_CUTOFF = 0.05  # relative eigenvalue of A^T A below which a direction is free (a crease of > 25 degrees stays)
 LEAF_BLOCK = 4  # cells per leaf block edge: the octree's finest interval test
-SLAB_BLOCKS = 1 << 14  # leaf blocks sampled and contoured at a time by all workers (about 200 MB)
+# samples taken and contoured at a time by all workers (about 200 MB; in points, not blocks: the
+# octree's leaves are twice as large where the surface crowds them)
+SLAB_POINTS = 1 << 21
 WORKERS = 2  # threads meshing slabs side by side on the CPU
 TRIM_QUADS = 1 << 21  # quads (about 400 MB of slab data) above which freed heap pages are handed back between passes
 INTERIOR = 1e-6  # cells: vertices kept this far inside their cells, crossings this far from the edges' ends
@@ -242,7 +244,7 @@ def dual_contour(
     if not tree.certified:
         _check_memory(res, dtype)  # every block is sampled: the dense grid's memory
     workers = WORKERS if torch.device(device).type == "cpu" else 1
-    slabs = _slabs(tree.blocks, block, cells[0], max(1, SLAB_BLOCKS // workers), workers)
+    slabs = _slabs(tree.blocks, block, cells[0], max(1, SLAB_POINTS // ((block + 1) ** 3 * workers)), workers)
     per_chunk = max(1, _chunk_points(f, CHUNK_POINTS) // (block + 1) ** 3)  # sample_blocks' chunks
     n_chunks = sum(-(-len(part) // per_chunk) for part, _, _ in slabs)
     empty = Mesh(np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64), np.zeros((0, 3)))

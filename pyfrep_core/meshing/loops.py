@@ -91,6 +91,62 @@ def _classify_blocks(
 
 
 @_jit
+def _block_points(part: np.ndarray, s: int, ax: np.ndarray, ay: np.ndarray, az: np.ndarray) -> np.ndarray:
+    """The nodes (3, k, s + 1, s + 1, s + 1) of blocks (k, 3) of ``s``^3 cells, component-first (as
+    compiled kernels read points), from the grid's sample positions per axis (``ax``, ``ay``,
+    ``az``; their dtype); nodes past the grid's last one repeat it (padding)."""
+    k = part.shape[0]
+    out = np.empty((3, k, s + 1, s + 1, s + 1), dtype=ax.dtype)
+    for b in range(k):
+        for i in range(s + 1):
+            x = ax[min(part[b, 0] * s + i, ax.shape[0] - 1)]
+            for j in range(s + 1):
+                y = ay[min(part[b, 1] * s + j, ay.shape[0] - 1)]
+                for m in range(s + 1):
+                    out[0, b, i, j, m] = x
+                    out[1, b, i, j, m] = y
+                    out[2, b, i, j, m] = az[min(part[b, 2] * s + m, az.shape[0] - 1)]
+    return out
+
+
+@_jit
+def _distinct_edges(
+    key: np.ndarray, order: np.ndarray, f0: np.ndarray, f1: np.ndarray, shape: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The edges of sorted keys ``key[order]`` (E,) (flat start node + axis * nodes, as
+    :func:`_classify_blocks` gives them, with f at their ends ``f0``, ``f1`` in the unsorted order),
+    each once: start nodes (D, 3) int64, axes (D,) int64 and end values (D,), in key order."""
+    n = key.shape[0]
+    n1, n2 = shape[1], shape[2]
+    n_nodes = shape[0] * n1 * n2
+    node = np.empty((n, 3), dtype=np.int64)
+    axis = np.empty(n, dtype=np.int64)
+    g0 = np.empty(n)
+    g1 = np.empty(n)
+    d = 0
+    for t in range(n):
+        e = order[t]
+        if t > 0 and key[e] == key[order[t - 1]]:
+            continue  # an edge on a face shared by two blocks: the same values from both
+        axis[d], flat = divmod(key[e], n_nodes)
+        node[d, 0], rest = divmod(flat, n1 * n2)
+        node[d, 1], node[d, 2] = divmod(rest, n2)
+        g0[d], g1[d] = f0[e], f1[e]
+        d += 1
+    return node[:d].copy(), axis[:d].copy(), g0[:d].copy(), g1[:d].copy()
+
+
+@_jit
+def _unravel_cells(key: np.ndarray, ncell: np.ndarray) -> np.ndarray:
+    """Cells (C, 3) int64 of flat keys (C,) over a grid of ``ncell`` (3,) cells."""
+    out = np.empty((key.shape[0], 3), dtype=np.int64)
+    for t in range(key.shape[0]):
+        out[t, 0], rest = divmod(key[t], ncell[1] * ncell[2])
+        out[t, 1], out[t, 2] = divmod(rest, ncell[2])
+    return out
+
+
+@_jit
 def _edge_vertices(
     keys: np.ndarray,
     config: np.ndarray,

@@ -31,7 +31,7 @@ import torch
 
 from ..interval import IntervalUnsupported, bounds
 from .grid import CHUNK_POINTS, _call, _chunk_points
-from .loops import _classify_blocks
+from .loops import _block_points, _classify_blocks, _distinct_edges, _unravel_cells
 
 __all__ = ["Octree", "Samples", "prune", "sample_blocks"]
 
@@ -170,20 +170,13 @@ def sample_blocks(
     shape = np.array([len(a) for a in axes], dtype=np.int64)
     ncell = shape - 1
     device = torch.device(device)
-    grid = [torch.as_tensor(a, dtype=dtype, device=device) for a in axes]
-    local = np.arange(s + 1)
+    grid = [np.asarray(a, dtype=np.float32 if dtype == torch.float32 else np.float64) for a in axes]
     per_chunk = max(1, _chunk_points(f, CHUNK_POINTS) // (s + 1) ** 3)
     edges_key, edges_f0, edges_f1, cells_key, cells_cfg = [], [], [], [], []
-    n_nodes = int(np.prod(shape))
     n_points, vmin, vmax = 0, math.inf, -math.inf
     for step, first in enumerate(range(0, len(blocks), per_chunk)):
         part = blocks[first : first + per_chunk]
-        k = len(part)
-        idx = [np.minimum(part[:, d, None] * s + local, shape[d] - 1) for d in range(3)]  # (k, s + 1) node indices
-        pts = torch.empty((3, k, s + 1, s + 1, s + 1), dtype=dtype, device=device)
-        pts[0] = grid[0][torch.as_tensor(idx[0], device=device)][:, :, None, None]
-        pts[1] = grid[1][torch.as_tensor(idx[1], device=device)][:, None, :, None]
-        pts[2] = grid[2][torch.as_tensor(idx[2], device=device)][:, None, None, :]
+        pts = torch.from_numpy(_block_points(part, s, *grid)).to(device=device, dtype=dtype)
         vals, lo, hi = _call(f, pts)
         n_points += vals.numel()
         vmin, vmax = min(vmin, lo), max(vmax, hi)
@@ -196,20 +189,14 @@ def sample_blocks(
         if progress is not None and progress.update(first_step + step):
             return None
     key = np.concatenate(edges_key) if edges_key else np.zeros(0, dtype=np.int64)
+    f0 = np.concatenate(edges_f0) if edges_f0 else np.zeros(0)
+    f1 = np.concatenate(edges_f1) if edges_f1 else np.zeros(0)
     # the edges on faces shared by two blocks come twice, with the same values: keep one of each
     # (an unstable argsort: several times faster than np.unique's stable one)
-    order = np.argsort(key)
-    key = key[order]
-    first = np.ones(len(key), dtype=bool)
-    np.not_equal(key[1:], key[:-1], out=first[1:])
-    key, first = key[first], order[first]
-    f0 = np.concatenate(edges_f0)[first] if len(key) else np.zeros(0)
-    f1 = np.concatenate(edges_f1)[first] if len(key) else np.zeros(0)
-    axis, flat = np.divmod(key, n_nodes)
-    edge_node = np.stack(np.unravel_index(flat, tuple(shape)), axis=1).astype(np.int64)
+    edge_node, axis, f0, f1 = _distinct_edges(key, np.argsort(key), f0, f1, shape)
     ckey = np.concatenate(cells_key) if cells_key else np.zeros(0, dtype=np.int64)
     cfg = np.concatenate(cells_cfg) if cells_cfg else np.zeros(0, dtype=np.uint8)
     order = np.argsort(ckey)  # the keys are distinct
     ckey, cfg = ckey[order], cfg[order]
-    cell = np.stack(np.unravel_index(ckey, tuple(ncell)), axis=1).astype(np.int64)
+    cell = _unravel_cells(ckey, ncell)
     return Samples(edge_node, axis, f0, f1, cell, ckey, cfg, n_points, vmin, vmax)

@@ -14,7 +14,17 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from pyfrep_core import SchwarzD, block, gyroid, intersection, polygonize, project_to_surface, sphere, torusZ
+from pyfrep_core import (
+    SchwarzD,
+    block,
+    gyroid,
+    intersection,
+    polygonize,
+    project_to_surface,
+    sphere,
+    torusZ,
+    value_and_grad,
+)
 from pyfrep_core.meshing.grid import grid_axes
 from pyfrep_core.meshing.octree import prune
 from pyfrep_core.models import fig1_part
@@ -131,6 +141,12 @@ def gyroid_solid(x):
     return intersection(gyroid(x), block(x, vertex=(-1.0, -1.0, -1.0), dx=2.0, dy=2.0, dz=2.0))
 
 
+def assert_gradient_at_the_vertices(m, f):
+    """The mesh's ``gradient`` is grad f at its vertices (also where folds moved them), to rounding."""
+    _, g = value_and_grad(f, m.vertices)
+    np.testing.assert_allclose(m.gradient, g, rtol=0, atol=1e-12 * np.abs(g).max())
+
+
 def assert_closed_manifold(m):
     _, counts, orientation = edge_table(m.faces)
     assert (counts == 2).all() and (orientation == 0).all()
@@ -147,13 +163,14 @@ def test_lattices_have_no_self_intersections_and_stay_closed_manifolds(shape, mo
     m = polygonize(f, bounds, n, method="dc", progress=False)
     assert len(self_intersecting_pairs(m)) == 0
     assert_closed_manifold(m)
+    assert_gradient_at_the_vertices(m, f)
     if shape == "microstructure":  # control: without the fallback to marching-cubes fans, pairs intersect
         from pyfrep_core.meshing import dual_contouring, folds
 
         def no_fallback(quads, corner, points, x, *rest):
             crossing = len(x) + np.arange(len(quads))
             faces = folds._hybrid(crossing, np.zeros(len(x), dtype=bool), folds._halves(quads, corner))
-            return faces, np.concatenate([x, points]), 0
+            return faces, np.concatenate([x, points]), np.zeros(0, dtype=np.int64)
 
         monkeypatch.setattr(dual_contouring, "_without_folds", no_fallback)
         plain = polygonize(f, bounds, n, method="dc", progress=False)
@@ -179,6 +196,7 @@ def test_marching_cubes_fans_everywhere_stay_closed_manifold_and_cell_local(monk
     m = polygonize(fig1_part, BOX, n, method="dc", progress=False)
     assert calls and m.n_faces == calls[0]  # each quad's four triangles became its two diamonds' four
     assert_closed_manifold(m)
+    assert_gradient_at_the_vertices(m, fig1_part)  # every vertex in a cell moved to its mass point
     assert len(self_intersecting_pairs(m)) == 0
     # every triangle lies in one grid cell (closed): a fan of that cell's polygon
     h = 2.2 / (n - 1)
@@ -207,6 +225,7 @@ def test_the_fold_search_looks_only_at_cells_not_proved_free_of_folds(shape, mon
     m = polygonize(f, bounds, n, method="dc", progress=False)
     assert len(self_intersecting_pairs(m)) == 0
     assert_closed_manifold(m)
+    assert_gradient_at_the_vertices(m, f)
     if shape == "microstructure":  # rods thinner than a cell: cells with two components, searched
         assert searched and all(0 < watched < total for watched, total in searched)
     else:  # nothing thinner than a cell: nothing to search

@@ -493,7 +493,7 @@ def _contour(
     parts_left = (quads, v.corner, v.points, x, v.mass, v.confined)
     point_gradient = v.point_gradient
     del v, quads  # what the folds need is in parts_left, handed over
-    faces, verts, _ = _without_folds(*parts_left, lo, spacing)
+    faces, verts, fanned = _without_folds(*parts_left, lo, spacing)
     del parts_left
     trim()
     used = _compact(faces, len(verts))  # faces renumbered in place
@@ -501,9 +501,10 @@ def _contour(
     in_cell = int(np.searchsorted(used, n))  # vertices in cells sorted first, then crossings
     gradient = np.empty_like(verts)
     _take_rows(cell_gradient.result()[1], used[:in_cell], gradient[:in_cell])
-    moved = np.flatnonzero((verts[:in_cell] != np.take(x, used[:in_cell], axis=0)).any(axis=1))
-    del x
-    if len(moved):
+    del cell_gradient, x
+    if len(fanned) and in_cell:  # the fanned vertices' rows after compaction, where they are used
+        moved = np.searchsorted(used[:in_cell], fanned)
+        moved = moved[(moved < in_cell) & (used[np.minimum(moved, in_cell - 1)] == fanned)]
         gradient[moved] = _value_and_grad(f, verts[moved], device)[1]
     _take_rows(point_gradient, used[in_cell:] - n, gradient[in_cell:])  # known at the crossings
     del point_gradient, used

@@ -316,9 +316,10 @@ def _unfold(
     origin: np.ndarray,
     h: np.ndarray,
     rounds: int = UNFOLD_ROUNDS,
-) -> tuple[np.ndarray, np.ndarray, int]:
+) -> tuple[np.ndarray, np.ndarray, int, np.ndarray]:
     """Faces and vertices with the vertices of intersecting faces turned into marching-cubes fans
-    at their mass points, round by round; and the number of intersecting pairs left.
+    at their mass points, round by round; the number of intersecting pairs left, and the vertices
+    fanned (moved to their mass points).
 
     ``quads`` (Q, 4) counter-clockwise seen from outside, ``corner`` as in :func:`_halves`;
     ``crossing_points`` (Q, 3) the roots on the quads' edges (appended to the vertices);
@@ -332,7 +333,7 @@ def _unfold(
     verts = np.concatenate([x, crossing_points])
     plain = _quad_halves(quads, n)  # the halves (crossing, q_i, q_i+1) of every quad
     if confined.all():
-        return plain, verts, 0
+        return plain, verts, 0, np.zeros(0, dtype=np.int64)
     exposed = np.concatenate([~confined, np.zeros(nq, dtype=bool)])
     # the region: quads with a vertex of a face that may meet a watched face (a watched face's
     # partners, the vertices that may be fanned, and the halves their fans cut all lie in it)
@@ -373,7 +374,7 @@ def _unfold(
             break  # only fans left among the intersecting faces
         fanned[new] = True
         verts[new] = mass[new]
-    return np.concatenate([outside, faces]), verts, len(bad)
+    return np.concatenate([outside, faces]), verts, len(bad), np.flatnonzero(fanned)
 
 
 def _without_folds(
@@ -385,9 +386,10 @@ def _without_folds(
     confined: np.ndarray,
     origin: np.ndarray,
     h: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray, int]:
-    """:func:`_unfold`, with a warning when intersecting pairs are left."""
-    faces, x, left = _unfold(quads, corner, crossing_points, x, mass, confined, origin, h)
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`_unfold`'s faces and vertices, and the vertices moved to their mass points (fanned), with a
+    warning when intersecting pairs are left."""
+    faces, x, left, fanned = _unfold(quads, corner, crossing_points, x, mass, confined, origin, h)
     if left:
         warnings.warn(
             f"polygonize: {left} pairs of faces still intersect after {UNFOLD_ROUNDS} rounds of "
@@ -395,4 +397,4 @@ def _without_folds(
             RuntimeWarning,
             stacklevel=4,
         )
-    return faces, x, left
+    return faces, x, fanned

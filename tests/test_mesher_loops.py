@@ -8,7 +8,14 @@ from scipy.spatial.transform import Rotation
 
 from pyfrep_core import polygonize, sphere
 from pyfrep_core.meshing import dual_contouring
-from pyfrep_core.meshing.loops import _classify_blocks, _compact, _edge_points, _symmetric_eigen3, _unbias_steps
+from pyfrep_core.meshing.loops import (
+    _classify_blocks,
+    _compact,
+    _edge_points,
+    _symmetric_eigen3,
+    _unbias_requests,
+    _unbias_scale,
+)
 from pyfrep_core.meshing.roots import _bracketed_roots
 from pyfrep_core.models import fig1_part
 
@@ -130,6 +137,12 @@ def test_bracketed_roots_find_the_roots_of_a_sphere_on_its_edges():
     np.testing.assert_allclose(0.95 + 0.1 * root, x_root + 0.95, atol=1e-12)
 
 
+def unbias_scale(quads, points, point_gradient, x, gradient):
+    total, count = np.zeros((1, len(x))), np.zeros((1, len(x)))
+    _unbias_requests(quads, points, point_gradient, x, gradient, total[0], count[0])
+    return _unbias_scale(total, count, gradient)
+
+
 @pytest.mark.parametrize("h", [0.1, 0.05, 0.025])
 def test_unbias_steps_ask_for_nine_eighths_of_the_centroid_depth_on_a_sphere(h):
     # one quad on the unit sphere f = 1 - |x|^2 (grad f = -2 x, inward): vertices at (1, +-h, +-h)
@@ -138,14 +151,14 @@ def test_unbias_steps_ask_for_nine_eighths_of_the_centroid_depth_on_a_sphere(h):
     corners = np.array([[1.0, -h, -h], [1.0, h, -h], [1.0, h, h], [1.0, -h, h]])
     x = corners / np.linalg.norm(corners, axis=1, keepdims=True)
     crossing = np.array([[1.0, 0.0, 0.0]])
-    scale = _unbias_steps(np.array([[0, 1, 2, 3]]), crossing, -2 * crossing, x, -2 * x)
+    scale = unbias_scale(np.array([[0, 1, 2, 3]]), crossing, -2 * crossing, x, -2 * x)
     exact = [1 - np.linalg.norm((crossing[0] + x[i] + x[(i + 1) % 4]) / 3) for i in range(4)]
     want = [1.125 * (exact[i - 1] + exact[i]) / 2 for i in range(4)]
     asked = scale * np.linalg.norm(-2 * x, axis=1)  # back to length units
     np.testing.assert_allclose(asked, want, rtol=2 * h**2)
     smooth_gradient = -2 * x
     smooth_gradient[0] = np.nan  # a vertex that is not smooth is neither moved nor asked
-    scale = _unbias_steps(np.array([[0, 1, 2, 3]]), crossing, -2 * crossing, x, smooth_gradient)
+    scale = unbias_scale(np.array([[0, 1, 2, 3]]), crossing, -2 * crossing, x, smooth_gradient)
     assert scale[0] == 0.0
     np.testing.assert_allclose(scale[2] * 2, want[2], rtol=2 * h**2)  # its two triangles do not touch vertex 0
 

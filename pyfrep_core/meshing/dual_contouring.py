@@ -77,7 +77,8 @@ from .loops import (
     _qef_sums,
     _solve_qefs,
     _take_rows,
-    _unbias_steps,
+    _unbias_requests,
+    _unbias_scale,
     _unit_normals,
 )
 from .mesh_type import Mesh
@@ -297,7 +298,7 @@ def dual_contour(
                 "polygonize: f does not change sign inside the bounds; empty mesh", RuntimeWarning, stacklevel=2
             )
             return empty
-        return _contour(f, parts, lo, hi, spacing, device, on_worker)
+        return _contour(f, parts, lo, hi, spacing, device, on_worker, workers)
 
 
 def _slabs(blocks: np.ndarray, block: int, ncell_x: int, limit: int, workers: int) -> list[tuple[np.ndarray, int, int]]:
@@ -460,10 +461,11 @@ def _contour(
     spacing: np.ndarray,
     device: Any,
     on_worker: Callable[..., Future],
+    workers: int,
 ) -> Mesh:
     """The mesh from all slabs' vertices and quads (``parts``, emptied): each quad cut at its
     crossing into four triangles, unbiasing, folds, compaction, grad f (``on_worker(fn, *args)``
-    runs on a worker while this thread goes on)."""
+    runs on one of the ``workers`` while this thread goes on)."""
     columns = [list(column) for column in zip(*parts)]
     parts.clear()
 
@@ -484,10 +486,11 @@ def _contour(
     # quads oriented outward (toward f <= 0); cut at their crossings (vertices n, n + 1, ...)
     quads = v.quads
     v = v._replace(quads=None)
-    x = _unbias(v.x, v.points, quads, v.gradient, v.point_gradient, v.cell, lo, hi, spacing)
-    # grad f at the vertices in cells, on a worker while the folds are searched here (the few
+    x = _unbias(v.x, v.points, quads, v.gradient, v.point_gradient, v.cell, lo, hi, spacing, on_worker, workers)
+    # grad f at the vertices in cells, on the workers while the folds are searched here (the few
     # vertices that a fold moves to their mass points get theirs again after)
-    cell_gradient = on_worker(_value_and_grad, f, x, device)
+    starts = [r[0] for r in np.array_split(np.arange(n), workers) if len(r)] + [n]
+    cell_gradient = [on_worker(_value_and_grad, f, x[a:b], device) for a, b in zip(starts[:-1], starts[1:])]
     v = v._replace(x=None, gradient=None, cell=None)  # not needed any more: memory for what follows
     # where faces of cells that are not confined intersect, the marching-cubes fans of the cells involved
     parts_left = (quads, v.corner, v.points, x, v.mass, v.confined)
@@ -500,7 +503,9 @@ def _contour(
     verts = np.take(verts, used, axis=0)
     in_cell = int(np.searchsorted(used, n))  # vertices in cells sorted first, then crossings
     gradient = np.empty_like(verts)
-    _take_rows(cell_gradient.result()[1], used[:in_cell], gradient[:in_cell])
+    for a, b, job in zip(starts[:-1], starts[1:], cell_gradient):  # each part's rows among those kept (sorted)
+        first, last = np.searchsorted(used[:in_cell], [a, b])
+        _take_rows(job.result()[1], used[first:last] - a, gradient[first:last])
     del cell_gradient, x
     if len(fanned) and in_cell:  # the fanned vertices' rows after compaction, where they are used
         moved = np.searchsorted(used[:in_cell], fanned)
@@ -547,6 +552,8 @@ def _unbias(
     lo: np.ndarray,
     hi: np.ndarray,
     spacing: np.ndarray,
+    on_worker: Callable[..., Future],
+    workers: int,
 ) -> np.ndarray:
     """Smooth vertices (V, 3) moved in place along the normal so that the triangles' mean distance to f = 0
     vanishes (each kept inside its cell: ``cell`` (V, 3) indices into the grid from ``lo`` to ``hi``,
@@ -560,11 +567,22 @@ def _unbias(
     the crossing stays: each of the two vertices is asked to move by 3/2 x 3/4 = 9/8 of the
     centroid's depth (triangles whose vertices are both smooth); a vertex moves by the mean of
     what its triangles ask.  The depth comes from the corners' normals, which are known (every
-    corner is on f = 0 with its grad f), so f is not evaluated again (:func:`.loops._unbias_steps`;
+    corner is on f = 0 with its grad f), so f is not evaluated again (:func:`.loops._unbias_requests`;
     against f / |grad f| at the centroids it changes the Fig. 1 part's volume error at 256^3 by 1e-7
     of 3e-6).  This removes the bias that would otherwise make the volume err by O(h^2) (the
     cylinders' holes of the Fig. 1 part) and halves the largest distance to the surface.
     """
-    scale = _unbias_steps(quads, points, point_gradient, x, gradient)
+    # the quads in ``workers`` parts, each part's requests in a row of its own (no shared sums)
+    total, count = np.zeros((workers, len(x))), np.zeros((workers, len(x)))
+    parts = np.array_split(np.arange(len(quads)), workers)
+    jobs = [
+        on_worker(_unbias_requests, *(a[r[0] : r[-1] + 1] for a in (quads, points, point_gradient)), x, gradient, t, c)
+        for r, t, c in zip(parts, total, count)
+        if len(r)
+    ]
+    for job in jobs:
+        job.result()
+    scale = _unbias_scale(total, count, gradient)
+    del total, count
     _move_in_cells(x, np.arange(len(x)), scale, gradient, cell, lo, hi, spacing, INTERIOR, -1.0)  # outward: -grad f
     return x

@@ -230,20 +230,22 @@ def _qef_sums(vert: np.ndarray, normal: np.ndarray, points: np.ndarray, offset: 
 
 
 @_jit
-def _unbias_steps(
-    quads: np.ndarray, points: np.ndarray, point_gradient: np.ndarray, x: np.ndarray, gradient: np.ndarray
-) -> np.ndarray:
-    """The moves (V,) in units of grad f (the move is ``scale * gradient``, > 0: inward) that the
-    triangles (crossing, q_i, q_i+1) of quads (Q, 4) whose two cell vertices are both smooth (finite
-    ``gradient``) ask of them: each asks both its vertices for 9/8 of its centroid's depth (> 0:
-    inside), a vertex takes the mean of what it is asked.  The depth of the midpoint of a chord p q
-    of a surface with unit inward normals m_p, m_q is (q - p) . (m_p - m_q) / 8 to leading order; the
-    chord error of a triangle is the quadratic a l1 l2 + b l2 l3 + c l3 l1 in barycentric
-    coordinates, 4 times that at each edge's midpoint, so (a + b + c) / 9 at the centroid.  Summed in
-    the quads' order."""
-    n = x.shape[0]
-    total = np.zeros(n)
-    count = np.zeros(n)
+def _unbias_requests(
+    quads: np.ndarray,
+    points: np.ndarray,
+    point_gradient: np.ndarray,
+    x: np.ndarray,
+    gradient: np.ndarray,
+    total: np.ndarray,
+    count: np.ndarray,
+) -> None:
+    """What the triangles (crossing, q_i, q_i+1) of quads (Q, 4) whose two cell vertices are both
+    smooth (finite ``gradient``) ask of them, added to ``total`` (V,) (length units, > 0: inward) and
+    their number to ``count`` (V,): each asks both its vertices for 9/8 of its centroid's depth (> 0:
+    inside).  The depth of the midpoint of a chord p q of a surface with unit inward normals m_p, m_q
+    is (q - p) . (m_p - m_q) / 8 to leading order; the chord error of a triangle is the quadratic
+    a l1 l2 + b l2 l3 + c l3 l1 in barycentric coordinates, 4 times that at each edge's midpoint, so
+    (a + b + c) / 9 at the centroid.  Summed in the quads' order."""
     unit = np.empty((5, 3))  # the quad's four vertices' unit normals, then the crossing's
     for q in range(quads.shape[0]):
         for k in range(5):
@@ -266,10 +268,24 @@ def _unbias_steps(
             total[b] += ask
             count[a] += 1.0
             count[b] += 1.0
+
+
+@_jit
+def _unbias_scale(total: np.ndarray, count: np.ndarray, gradient: np.ndarray) -> np.ndarray:
+    """The mean request per vertex in units of grad f, from the requests of W parts of the quads
+    (``total``, ``count`` (W, V), :func:`_unbias_requests`), summed in the parts' order: the move is
+    ``scale * gradient`` (V,) (> 0: inward)."""
+    n = gradient.shape[0]
+    scale = np.zeros(n)
     for v in range(n):
-        g = gradient[v]
-        total[v] = total[v] / count[v] / np.sqrt(g[0] * g[0] + g[1] * g[1] + g[2] * g[2]) if count[v] > 0 else 0.0
-    return total
+        asked, times = 0.0, 0.0
+        for w in range(total.shape[0]):
+            asked += total[w, v]
+            times += count[w, v]
+        if times > 0:
+            g = gradient[v]
+            scale[v] = asked / times / np.sqrt(g[0] * g[0] + g[1] * g[1] + g[2] * g[2])
+    return scale
 
 
 @_jit

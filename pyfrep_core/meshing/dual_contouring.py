@@ -489,8 +489,8 @@ def _contour(
     x = _unbias(v.x, v.points, quads, v.gradient, v.point_gradient, v.cell, lo, hi, spacing, on_worker, workers)
     # grad f at the vertices in cells, on the workers while the folds are searched here (the few
     # vertices that a fold moves to their mass points get theirs again after)
-    starts = [r[0] for r in np.array_split(np.arange(n), workers) if len(r)] + [n]
-    cell_gradient = [on_worker(_value_and_grad, f, x[a:b], device) for a, b in zip(starts[:-1], starts[1:])]
+    ranges = _ranges(n, workers)
+    cell_gradient = [on_worker(_value_and_grad, f, x[a:b], device) for a, b in ranges]
     v = v._replace(x=None, gradient=None, cell=None)  # not needed any more: memory for what follows
     # where faces of cells that are not confined intersect, the marching-cubes fans of the cells involved
     parts_left = (quads, v.corner, v.points, x, v.mass, v.confined)
@@ -503,7 +503,7 @@ def _contour(
     verts = np.take(verts, used, axis=0)
     in_cell = int(np.searchsorted(used, n))  # vertices in cells sorted first, then crossings
     gradient = np.empty_like(verts)
-    for a, b, job in zip(starts[:-1], starts[1:], cell_gradient):  # each part's rows among those kept (sorted)
+    for (a, b), job in zip(ranges, cell_gradient):  # each part's rows among those kept (sorted)
         first, last = np.searchsorted(used[:in_cell], [a, b])
         _take_rows(job.result()[1], used[first:last] - a, gradient[first:last])
     del cell_gradient, x
@@ -514,6 +514,16 @@ def _contour(
     _take_rows(point_gradient, used[in_cell:] - n, gradient[in_cell:])  # known at the crossings
     del point_gradient, used
     return Mesh(verts, faces, _normals(gradient, verts, faces), gradient=gradient)
+
+
+def _ranges(n: int, parts: int) -> list[tuple[int, int]]:
+    """``parts`` contiguous row ranges [a, b) of about equal length covering n rows (empty ones left out).
+
+    >>> _ranges(5, 2), _ranges(1, 2)
+    ([(0, 2), (2, 5)], [(0, 1)])
+    """
+    ends = [n * k // parts for k in range(parts + 1)]
+    return [(a, b) for a, b in zip(ends[:-1], ends[1:]) if b > a]
 
 
 def _project_smooth(
@@ -570,15 +580,14 @@ def _unbias(
     corner is on f = 0 with its grad f), so f is not evaluated again (:func:`.loops._unbias_requests`;
     against f / |grad f| at the centroids it changes the Fig. 1 part's volume error at 256^3 by 1e-7
     of 3e-6).  This removes the bias that would otherwise make the volume err by O(h^2) (the
-    cylinders' holes of the Fig. 1 part) and halves the largest distance to the surface.
+    cylinders' holes of the Fig. 1 part) and halves the largest distance to the surface.  The
+    requests of the quads' ``workers`` parts are gathered through ``on_worker(fn, *args)``.
     """
     # the quads in ``workers`` parts, each part's requests in a row of its own (no shared sums)
     total, count = np.zeros((workers, len(x))), np.zeros((workers, len(x)))
-    parts = np.array_split(np.arange(len(quads)), workers)
     jobs = [
-        on_worker(_unbias_requests, *(a[r[0] : r[-1] + 1] for a in (quads, points, point_gradient)), x, gradient, t, c)
-        for r, t, c in zip(parts, total, count)
-        if len(r)
+        on_worker(_unbias_requests, quads[a:b], points[a:b], point_gradient[a:b], x, gradient, t, c)
+        for (a, b), t, c in zip(_ranges(len(quads), workers), total, count)
     ]
     for job in jobs:
         job.result()

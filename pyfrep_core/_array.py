@@ -408,7 +408,10 @@ def check_finite(x: torch.Tensor | np.ndarray, name: str = "x", fn: str | None =
         return
     # min and max propagate NaN, and are finite exactly when every entry is: one reduction, no
     # temporaries (torch.isfinite(x).all() is ~8x slower on the CPU: 30 ms for 1e6 points)
-    if all(math.isfinite(v) for v in torch.stack(torch.aminmax(x.detach())).tolist()):
+    values = x.detach()
+    if values.ndim == 2 and not values.is_contiguous() and values.t().is_contiguous():
+        values = values.t()  # the same entries in memory order: a transposed reduction is ~10x slower
+    if all(math.isfinite(v) for v in torch.stack(torch.aminmax(values)).tolist()):
         return
     bad = ~torch.isfinite(x.detach())
     idx = tuple(int(i) for i in torch.nonzero(bad)[0])

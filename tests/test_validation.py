@@ -18,6 +18,7 @@ import torch
 
 import pyfrep_core
 from pyfrep_core import Param, RedistancedSDF, model, sdf, sphere, superEll, superQuadric
+from pyfrep_core import _array as array
 from pyfrep_core._array import validated_inputs
 
 # ----------------------------------------------------------------------------- the catalogue
@@ -387,7 +388,6 @@ def test_a_model_of_twenty_primitives_reads_its_points_once(monkeypatch):
 
 
 def test_grad_and_polygonize_do_not_read_points_per_primitive(monkeypatch):
-    import pyfrep_core._array as array
 
     checks = []
     check_finite = array.check_finite
@@ -409,6 +409,17 @@ def test_grad_and_polygonize_do_not_read_points_per_primitive(monkeypatch):
     # polygonize builds its grid from checked bounds and projects vertices onto f = 0: none re-read
     mesh = pyfrep_core.polygonize(plain, ((-1.5, -1, -1), (1.5, 1, 1)), resolution=17)
     assert checks == [] and len(mesh.faces) > 0
+    # so does dual contouring: roots, vertices and their gradients are found inside their cells
+    mesh = pyfrep_core.polygonize(plain, ((-1.5, -1, -1), (1.5, 1, 1)), resolution=17, method="dc")
+    assert checks == [] and len(mesh.faces) > 0
+
+
+def test_check_finite_reads_a_transposed_tensor_in_memory_order():
+    x = torch.rand(3, 1000, dtype=torch.float64).t()  # (1000, 3), x[:, 0] contiguous (compiled kernels' layout)
+    array.check_finite(x)
+    x[617, 2] = float("inf")
+    with pytest.raises(ValueError, match=r"non-finite value \(inf\) at index \(617, 2\)"):
+        array.check_finite(x)
 
 
 def test_vmap_and_grad_transforms_of_a_model_still_work():

@@ -64,7 +64,8 @@ def _value_and_grad(f: Callable, x: np.ndarray, device: Any) -> tuple[np.ndarray
         return np.zeros(0), np.zeros((0, 3))
     t = torch.as_tensor(x, dtype=torch.float64, device=device)
     hint = _chunk_points(f, 0)  # a compiled model's chunk size, else diff's default
-    value, gradient = value_and_grad(f, t, chunk=hint or None)
+    with validated_inputs():  # vertices and roots in their cells: finite, not read again
+        value, gradient = value_and_grad(f, t, chunk=hint or None)
     return value.cpu().numpy(), gradient.cpu().numpy()
 
 

@@ -4,6 +4,7 @@ dual contouring's slabs and threads: the same mesh however the grid is cut.
 
 import numpy as np
 import pytest
+import torch
 from scipy.spatial.transform import Rotation
 
 from pyfrep_core import polygonize, sphere
@@ -173,3 +174,26 @@ def test_dual_contouring_gives_the_same_mesh_however_the_slabs_are_cut(monkeypat
     assert many.n_faces == one.n_faces and many.n_vertices == one.n_vertices
     np.testing.assert_allclose(np.sort(many.vertices, axis=0), np.sort(one.vertices, axis=0), atol=1e-12)
     assert many.volume() == pytest.approx(one.volume(), abs=1e-12)
+
+
+def test_bracketed_roots_close_in_on_a_kink_from_both_sides():
+    # f = min(plateau, slope (x - root)) along edges x in [0, 1] (the root moves with y): nearly flat
+    # (a face grazing the edge) beyond a kink just past the root.  Plain regula falsi keeps the far
+    # end and creeps along the plateau (after 20 steps its estimates were still 0.26-0.30 short of the
+    # roots; it took 60); halving the kept end's value (Illinois) crosses the kink in a few steps.
+    root_x = np.array([0.197, 0.31, 0.52, 0.8])
+    slope, plateau = 0.0548, 4.1e-4
+
+    def f(p):
+        return torch.clamp(slope * (p[:, 0] - 0.197 - p[:, 1]), max=plateau)
+
+    n = len(root_x)
+    start = np.zeros((n, 3))
+    start[:, 1] = root_x - 0.197
+    f0, f1 = -slope * root_x, np.full(n, plateau)
+    c = f0 / (f0 - f1)
+    root, rest, _ = _bracketed_roots(
+        f, start, start[:, 0].copy(), np.ones(n), np.zeros(n, dtype=np.int64), c, f1 - f0, f0, f1, 1e-12, "cpu", 20
+    )
+    assert len(rest) == 0
+    np.testing.assert_allclose(root, root_x, atol=1e-12)

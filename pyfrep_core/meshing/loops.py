@@ -561,6 +561,7 @@ def _secant_step(
     fa: np.ndarray,
     p: np.ndarray,
     fp: np.ndarray,
+    falsi: np.ndarray,
     step_tol: float,
     root: np.ndarray,
 ) -> np.ndarray:
@@ -568,11 +569,17 @@ def _secant_step(
     ``fc`` (K,); the rows still moving come back.
 
     Per edge r (in edge units; state updated in place): ``c`` the estimate, ``a``, ``fa`` the bracket's
-    other end, ``p``, ``fp`` the previous iterate.  The first step sets the bracket from the end
-    values ``f0``, ``f1`` and takes Newton's step with ``slope``; the next ones take the secant
-    through the last two iterates, after moving the bracket's end to the previous iterate when the
-    sign changed.  A step that leaves the bracket is replaced by regula falsi's (inside it).  An
-    edge is done (``root[r]`` set) when the step is below ``step_tol`` (length units) or f is 0.
+    other end, ``p``, ``fp`` the previous iterate, ``falsi`` whether the last step was regula falsi's.
+    The first step sets the bracket from the end values ``f0``, ``f1`` and takes Newton's step with
+    ``slope``; the next ones take the secant through the last two iterates, after moving the
+    bracket's end to the previous iterate when the sign changed.  A step that leaves the bracket is
+    replaced by regula falsi's (inside it).  An edge is done (``root[r]`` set) when the step is below
+    ``step_tol`` (length units) or f is 0.
+
+    Where f bends sharply in the bracket (a kink of min/max near the root), regula falsi keeps one
+    end and creeps toward the root from the other by a fixed fraction a step.  So, as in the
+    Illinois method, when a regula falsi step is followed by one that keeps the same end, that
+    end's value is halved: the next estimate lands on the far side and the bracket closes from both.
     """
     moving = np.empty(rows.shape[0], dtype=np.int64)
     m = 0
@@ -584,12 +591,16 @@ def _secant_step(
             a[r] = 1.0 if same else 0.0
             fa[r] = f1[r] if same else f0[r]
             nxt = ck - fck / slope[r]  # Newton with the cubic's slope
+            falsi[r] = False
         else:  # the bracket becomes [previous iterate, c] when the sign changed
             if (fck > 0) != (fp[r] > 0):
                 a[r], fa[r] = p[r], fp[r]
+            elif falsi[r]:  # the same end kept after a regula falsi step (Illinois)
+                fa[r] *= 0.5
             nxt = ck - fck * (ck - p[r]) / (fck - fp[r])
         move = nxt - ck
-        if not ((nxt - a[r]) * move < 0):  # regula falsi: inside
+        falsi[r] = not ((nxt - a[r]) * move < 0)
+        if falsi[r]:  # regula falsi: inside
             nxt = ck - fck * (ck - a[r]) / (fck - fa[r])
             move = nxt - ck
         finished = abs(move) * h[r] <= step_tol  # False for NaN

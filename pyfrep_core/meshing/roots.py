@@ -246,11 +246,12 @@ def _bracketed_roots(
     root = np.full(len(c), np.nan)
     c = np.array(c, dtype=np.float64)  # the estimates, per edge (updated in place by the steps)
     a, fa, p, fp = (np.zeros(len(c)) for _ in range(4))  # bracket end opposite to c, previous iterate
+    falsi = np.zeros(len(c), dtype=np.bool_)
     h = np.ascontiguousarray(np.broadcast_to(h, c.shape), dtype=np.float64)
     rows = np.arange(len(c))
     for step in range(max_iter):
         fc = _f64(f, _edge_points(rows, start, axis, start_axis, h, c), device)
-        rows = _secant_step(rows, fc, step == 0, f0, f1, slope, h, c, a, fa, p, fp, step_tol, root)
+        rows = _secant_step(rows, fc, step == 0, f0, f1, slope, h, c, a, fa, p, fp, falsi, step_tol, root)
         if len(rows) == 0:
             break
     return root, rows, c[rows]

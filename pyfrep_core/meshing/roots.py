@@ -237,8 +237,9 @@ def _bracketed_roots(
     Edge k runs from ``start[k]`` (K, 3) along axis ``axis[k]`` over length ``h[k]``; its end
     values ``f0[k]``, ``f1[k]`` have opposite signs; ``start_axis[k]`` is ``start[k, axis[k]]``.
     ``c`` is the first guess in (0, 1) and ``slope`` df/dt there (Newton's first step).  Secant
-    steps are taken while they stay inside the bracket, regula falsi's otherwise; an edge is
-    done when the next step is below ``step_tol`` (length units) or f is exactly 0.
+    steps are taken while they stay inside the bracket, regula falsi's otherwise (Illinois: the kept
+    end's value halved after a regula falsi step that did not cross the root); an edge is done when
+    the next step is below ``step_tol`` (length units) or f is exactly 0.
 
     Returns ``root`` (K,) in edge units (NaN where not done), and the rows not done after
     ``max_iter`` steps with their last estimates ``c``.

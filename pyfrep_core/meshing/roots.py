@@ -21,6 +21,7 @@ import torch
 from .._array import validated_inputs
 from ..diff import project_to_surface, value_and_grad
 from ..evaluate import evaluate
+from ..model import Model
 from .grid import _chunk_points, _map
 from .loops import _edge_points, _secant_step, _unit_normals
 
@@ -41,6 +42,35 @@ def _row_norms(x: np.ndarray) -> np.ndarray:
 def _tolerance(lo: Any, hi: Any) -> float:
     """100 ulp of the largest coordinate (project_to_surface's default tolerance)."""
     return 100.0 * float(np.finfo(np.float64).eps) * max(1.0, float(np.abs([lo, hi]).max()))
+
+
+def _bound(f: Callable, device: Any) -> Callable:
+    """f for the mesher's own points, plain float64 (N, 3) tensors inside checked bounds: a 3-D
+    Model's defining function with its parameters bound once, as 0-d tensors.
+
+    A Model's call reads its points' shape and its parameters' values on every call (80 us of
+    Python under the GIL, against 50 us for the fused kernel on a few hundred points: the root
+    finder's last steps); the defining function gets the same points and parameters here.  Any
+    other f, or a Model with a batch of parameters, comes back as it is.
+
+    >>> from pyfrep_core.models import fig1_part
+    >>> x = torch.tensor([[0.1, 0.2, 0.3], [0.9, 0.0, 0.0]], dtype=torch.float64)
+    >>> torch.equal(_bound(fig1_part, "cpu")(x), fig1_part(x))
+    True
+    """
+    if not isinstance(f, Model) or f.dim != 3:
+        return f
+    params = {k: torch.as_tensor(v, dtype=torch.float64, device=device) for k, v in f.check().items()}
+    if any(v.ndim for v in params.values()):
+        return f
+    fn = f.fn
+
+    def bound(x: torch.Tensor) -> torch.Tensor:
+        return fn(x, **params)
+
+    bound.chunk_points = getattr(f, "chunk_points", None)  # the chunks that suit f (_chunk_points)
+    bound.__name__ = f.__name__
+    return bound
 
 
 def _f64(f: Callable, x: np.ndarray, device: Any) -> np.ndarray:
@@ -65,7 +95,7 @@ def _value_and_grad(f: Callable, x: np.ndarray, device: Any) -> tuple[np.ndarray
     t = torch.as_tensor(x, dtype=torch.float64, device=device)
     hint = _chunk_points(f, 0)  # a compiled model's chunk size, else diff's default
     with validated_inputs():  # vertices and roots in their cells: finite, not read again
-        value, gradient = value_and_grad(f, t, chunk=hint or None)
+        value, gradient = value_and_grad(_bound(f, device), t, chunk=hint or None)
     return value.cpu().numpy(), gradient.cpu().numpy()
 
 
@@ -250,6 +280,7 @@ def _bracketed_roots(
     falsi = np.zeros(len(c), dtype=np.bool_)
     h = np.ascontiguousarray(np.broadcast_to(h, c.shape), dtype=np.float64)
     rows = np.arange(len(c))
+    f = _bound(f, device)
     for step in range(max_iter):
         fc = _f64(f, _edge_points(rows, start, axis, start_axis, h, c), device)
         rows = _secant_step(rows, fc, step == 0, f0, f1, slope, h, c, a, fa, p, fp, falsi, step_tol, root)

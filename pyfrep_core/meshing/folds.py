@@ -42,6 +42,58 @@ PAIR_CHUNK = 1 << 16  # candidate pairs tested at a time (temporaries stay in ca
 SLAB_FACES = 1 << 18  # faces searched for intersecting pairs at a time (memory of the search)
 
 
+def _largest_span(cell: np.ndarray, faces: np.ndarray) -> int:
+    """The largest extent, in cells along one axis, of a face (F, 3) whose vertices lie in ``cell`` (V, 3).
+
+    Axis by axis, 1-D gathers in chunks (a reduction over (F, 3, 3)'s middle axis costs several
+    times more, and its memory grows with the faces).
+
+    >>> _largest_span(np.array([[0, 0, 0], [2, 1, 0], [0, 3, 1]]), np.array([[0, 1, 2]]))
+    3
+    """
+    reach = 0
+    for d in range(3):
+        column = np.ascontiguousarray(cell[:, d])
+        for start in range(0, len(faces), SLAB_FACES):
+            a, b, c = (column[faces[start : start + SLAB_FACES, k]] for k in range(3))
+            span = np.maximum(np.maximum(a, b), c) - np.minimum(np.minimum(a, b), c)
+            reach = max(reach, int(span.max(initial=0)))
+    return reach
+
+
+def _boxes(v: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Lower and upper corners (3, F) of the faces' (F, 3) bounding boxes, coordinates first.
+
+    >>> lo, hi = _boxes(np.array([[0.0, 0, 0], [2, 1, 0], [0, 3, 1]]), np.array([[0, 1, 2]]))
+    >>> lo.ravel().tolist(), hi.ravel().tolist()
+    ([0.0, 0.0, 0.0], [2.0, 3.0, 1.0])
+    """
+    lo = np.empty((3, len(faces)))
+    hi = np.empty((3, len(faces)))
+    for d in range(3):
+        column = np.ascontiguousarray(v[:, d])
+        a, b, c = (column[faces[:, k]] for k in range(3))
+        np.minimum(np.minimum(a, b, out=lo[d]), c, out=lo[d])
+        np.maximum(np.maximum(a, b, out=hi[d]), c, out=hi[d])
+    return lo, hi
+
+
+def _renumber(faces: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """The vertices (< n) that ``faces`` (F, 3) use, ascending, and the faces in their numbering: what
+    ``np.unique(faces, return_inverse=True)`` gives, by marking instead of sorting.
+
+    >>> used, local = _renumber(np.array([[7, 2, 5], [5, 2, 9]]), 10)
+    >>> used.tolist(), local.tolist()
+    ([2, 5, 7, 9], [[2, 0, 1], [1, 0, 3]])
+    """
+    mark = np.zeros(n, dtype=bool)
+    mark[faces.ravel()] = True
+    used = np.flatnonzero(mark)
+    index = np.empty(n, dtype=np.int64)
+    index[used] = np.arange(len(used))
+    return used, index[faces]
+
+
 def _cells_of(
     faces: np.ndarray, subset: np.ndarray, cell: np.ndarray, dims: np.ndarray, alone: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -107,8 +159,7 @@ def _candidate_pairs(
         # the faces whose boxes can meet a changed face's cells have a vertex within a box's span of them
         _, hot, _ = _cells_of(faces, np.flatnonzero(changed), cell, dims, alone)
         hot = np.unique(hot)
-        corner = cell[faces]
-        reach = int((corner.max(axis=1) - corner.min(axis=1)).max(initial=0))
+        reach = _largest_span(cell, faces)
         step = np.arange(-reach, reach + 1)
         offset = np.stack(np.meshgrid(step, step, step, indexing="ij"), axis=-1).reshape(-1, 3)
         offset_key = (offset[:, 0] * dims[1] + offset[:, 1]) * dims[2] + offset[:, 2]
@@ -121,9 +172,7 @@ def _candidate_pairs(
     face, key, own = face[order], key[order], own[order]
     start = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
     end = np.repeat(np.r_[start[1:], len(key)], np.diff(np.r_[start, len(key)]))
-    corners = v[faces]
-    lo = np.ascontiguousarray(corners.min(axis=1).T)  # (3, F): one gather per axis below
-    hi = np.ascontiguousarray(corners.max(axis=1).T)
+    lo, hi = _boxes(v, faces)  # (3, F): one gather per axis below
     corner_ids = np.ascontiguousarray(faces.T)
     out = []
     idx = np.flatnonzero(~own)
@@ -206,8 +255,10 @@ def _intersecting_pairs(
     if len(faces) <= SLAB_FACES:
         pairs = _candidate_pairs(v, faces, origin, h, changed)
         return pairs[_pairs_intersect(v, faces, pairs)]
-    layer = np.floor((v[:, 0] - origin[0]) / h[0]).astype(np.int64)[faces]
-    first, last = layer.min(axis=1), layer.max(axis=1)
+    layer = np.floor((v[:, 0] - origin[0]) / h[0]).astype(np.int64)
+    a, b, c = (layer[faces[:, k]] for k in range(3))
+    first, last = np.minimum(np.minimum(a, b), c), np.maximum(np.maximum(a, b), c)
+    del a, b, c
     # layer boundaries such that at most SLAB_FACES faces start in each slab (at least one layer)
     start, count = np.unique(first, return_counts=True)
     bounds, total = [start[0]], 0
@@ -220,8 +271,8 @@ def _intersecting_pairs(
     found = []
     for lo_layer, hi_layer in zip(bounds[:-1], bounds[1:]):
         subset = np.flatnonzero((first < hi_layer) & (last >= lo_layer))
-        used, part = np.unique(faces[subset], return_inverse=True)  # the slab's vertices only
-        part, near = part.reshape(-1, 3), v[used]
+        used, part = _renumber(faces[subset], len(v))  # the slab's vertices only
+        near = v[used]
         pairs = _candidate_pairs(near, part, origin, h, None if changed is None else changed[subset])
         pairs = pairs[_pairs_intersect(near, part, pairs)]
         found.append(subset[pairs])
@@ -238,14 +289,7 @@ def _near(v: np.ndarray, faces: np.ndarray, watch: np.ndarray, origin: np.ndarra
     """
     cell = np.floor((v - origin) / h).astype(np.int64)
     cell -= cell.min(axis=0) - 1
-    reach = 0
-    for d in range(3):  # axis by axis, 1-D gathers (a reduction over (F, 3, 3)'s middle axis costs several times more)
-        column = np.ascontiguousarray(cell[:, d])
-        for start in range(0, len(faces), SLAB_FACES):  # chunks: the gathers' memory stays bounded
-            a, b, c = (column[faces[start : start + SLAB_FACES, k]] for k in range(3))
-            span = np.maximum(np.maximum(a, b), c) - np.minimum(np.minimum(a, b), c)
-            reach = max(reach, int(span.max(initial=0)))
-    pad = 2 * reach
+    pad = 2 * _largest_span(cell, faces)
     cell += pad
     dims = cell.max(axis=0) + pad + 1
     key = (cell[:, 0] * dims[1] + cell[:, 1]) * dims[2] + cell[:, 2]
@@ -363,8 +407,8 @@ def _unfold(
         if not watch.any():
             break
         near = _near(verts, faces, watch, origin, h)  # on the faces near the watched ones, and their vertices only
-        used, local = np.unique(faces[near], return_inverse=True)
-        bad = near[_intersecting_pairs(verts[used], local.reshape(-1, 3), origin, h, watch[near])]
+        used, local = _renumber(faces[near], len(verts))
+        bad = near[_intersecting_pairs(verts[used], local, origin, h, watch[near])]
         if len(bad) == 0 or round_ == rounds:
             break
         touched = np.unique(faces[bad.ravel()])

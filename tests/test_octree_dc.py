@@ -25,6 +25,7 @@ from pyfrep_core import (
     torusZ,
     value_and_grad,
 )
+from pyfrep_core.meshing import folds
 from pyfrep_core.meshing.grid import grid_axes
 from pyfrep_core.meshing.octree import prune
 from pyfrep_core.models import fig1_part
@@ -438,3 +439,21 @@ def test_polygonize_reports_progress_and_stops(method):
     stop.set()
     assert polygonize(fig1_part, BOX, 64, method=method, stop=stop, progress=False).is_empty()
     assert polygonize(fig1_part, BOX, 64, method=method, callback=lambda e: True, progress=False).is_empty()
+
+
+@pytest.mark.parametrize("pad", [0, 1, 3])
+def test_within_marks_exactly_the_cells_near_the_keys(monkeypatch, pad):
+    rng = np.random.default_rng(pad)
+    dims = np.array([9, 7, 11])
+    keys = rng.choice(int(np.prod(dims)), 12, replace=False)
+    query = np.arange(int(np.prod(dims)))
+    ijk = np.stack(np.unravel_index(query, tuple(dims)), axis=1)
+    exact = (np.abs(ijk[:, None, :] - ijk[keys][None]).max(axis=2) <= pad).any(axis=1)
+    grid = folds._within(keys, dims, pad, query)  # the dilation on the grid of cells
+    np.testing.assert_array_equal(grid, exact)
+    monkeypatch.setattr(folds, "DENSE_CELLS", 0)
+    sparse = folds._within(keys, dims, pad, query[:10])  # 4 per queried cell < the grid: on the keys
+    assert (sparse >= exact[:10]).all()  # a key shifted past a row's end: more cells, never fewer
+    inner = (ijk >= pad).all(axis=1) & (ijk < dims - pad).all(axis=1)
+    sparse = folds._within(keys, dims, pad, query[inner][:10])
+    np.testing.assert_array_equal(sparse, exact[inner][:10])

@@ -34,12 +34,14 @@ from __future__ import annotations
 import warnings
 
 import numpy as np
+from scipy.ndimage import maximum_filter
 
 from .loops import _quad_halves
 
 UNFOLD_ROUNDS = 6  # rounds of "find intersecting faces, fan their vertices" (each grows the fanned set)
 PAIR_CHUNK = 1 << 16  # candidate pairs tested at a time (temporaries stay in cache)
 SLAB_FACES = 1 << 18  # faces searched for intersecting pairs at a time (memory of the search)
+DENSE_CELLS = 1 << 22  # cell grids up to this size (or 4 per queried cell) are dilated as grids (see _within)
 
 
 def _largest_span(cell: np.ndarray, faces: np.ndarray) -> int:
@@ -158,15 +160,9 @@ def _candidate_pairs(
     else:
         # the faces whose boxes can meet a changed face's cells have a vertex within a box's span of them
         _, hot, _ = _cells_of(faces, np.flatnonzero(changed), cell, dims, alone)
-        hot = np.unique(hot)
-        reach = _largest_span(cell, faces)
-        step = np.arange(-reach, reach + 1)
-        offset = np.stack(np.meshgrid(step, step, step, indexing="ij"), axis=-1).reshape(-1, 3)
-        offset_key = (offset[:, 0] * dims[1] + offset[:, 1]) * dims[2] + offset[:, 2]
-        near_keys = np.unique((hot[:, None] + offset_key[None]).ravel())
-        near = np.isin(vkey, near_keys)[faces].any(axis=1)
-        face, key, own = _cells_of(faces, np.flatnonzero(near), cell, dims, alone)
-        keep = np.isin(key, hot)
+        near = _within(hot, dims, _largest_span(cell, faces), vkey)
+        face, key, own = _cells_of(faces, np.flatnonzero(near[faces].any(axis=1)), cell, dims, alone)
+        keep = _within(hot, dims, 0, key)
         face, key, own = face[keep], key[keep], own[keep]
     order = np.argsort(2 * key + own)  # by cell, the faces that do not hold its only vertex first
     face, key, own = face[order], key[order], own[order]
@@ -293,11 +289,33 @@ def _near(v: np.ndarray, faces: np.ndarray, watch: np.ndarray, origin: np.ndarra
     cell += pad
     dims = cell.max(axis=0) + pad + 1
     key = (cell[:, 0] * dims[1] + cell[:, 1]) * dims[2] + cell[:, 2]
-    near = np.unique(key[faces[watch]])
-    for stride in (dims[1] * dims[2], dims[2], 1):  # the box dilation, axis by axis
-        near = np.unique((near[:, None] + stride * np.arange(-pad, pad + 1)).ravel())
-    hit = np.isin(key, near)
+    hit = _within(key[faces[watch]].ravel(), dims, pad, key)
     return np.flatnonzero(hit[faces].any(axis=1))
+
+
+def _within(keys: np.ndarray, dims: np.ndarray, pad: int, query: np.ndarray) -> np.ndarray:
+    """Whether each cell of ``query`` lies within ``pad`` cells, along every axis, of a cell of ``keys``
+    (cells numbered ``(i dims[1] + j) dims[2] + k``, in [0, dims)).
+
+    Where the grid of cells is not much larger than the query, the box dilation runs on it
+    (``scipy.ndimage.maximum_filter``, separable); otherwise on the keys, axis by axis (a key
+    shifted past a row's end marks a cell of the next row: a few more cells, never fewer).
+
+    >>> dims = np.array([4, 4, 4])
+    >>> _within(np.array([0]), dims, 1, np.array([21, 42])).tolist()  # cells (1, 1, 1) and (2, 2, 2)
+    [True, False]
+    """
+    size = int(np.prod(dims))
+    if size <= max(DENSE_CELLS, 4 * len(query)):
+        grid = np.zeros(size, dtype=np.uint8)
+        grid[keys] = 1
+        if pad:
+            grid = maximum_filter(grid.reshape(tuple(int(d) for d in dims)), size=2 * pad + 1, mode="constant").ravel()
+        return grid.view(bool)[query]
+    near = np.unique(keys)
+    for stride in (dims[1] * dims[2], dims[2], 1):
+        near = np.unique((near[:, None] + stride * np.arange(-pad, pad + 1)).ravel())
+    return np.isin(query, near)
 
 
 def _halves(quads: np.ndarray, corner: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

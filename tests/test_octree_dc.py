@@ -457,3 +457,25 @@ def test_within_marks_exactly_the_cells_near_the_keys(monkeypatch, pad):
     inner = (ijk >= pad).all(axis=1) & (ijk < dims - pad).all(axis=1)
     sparse = folds._within(keys, dims, pad, query[inner][:10])
     np.testing.assert_array_equal(sparse, exact[inner][:10])
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_the_fold_search_finds_every_intersecting_pair_of_a_triangle_soup(seed):
+    # small triangles (up to 1.5 cells) in a box of 6^3 cells, some sharing vertices; every pair
+    # that shares no vertex is tested by brute force
+    rng = np.random.default_rng(seed)
+    centers = rng.uniform(0.0, 6.0, size=(150, 3))
+    v = np.concatenate([centers[:, None, :] + rng.uniform(-0.75, 0.75, size=(150, 3, 3))]).reshape(-1, 3)
+    faces = np.arange(len(v)).reshape(-1, 3)
+    faces[::7, 0] = faces[1::7, 1][: len(faces[::7])]  # some faces share a vertex with the next
+    i, j = np.triu_indices(len(faces), 1)
+    apart = ~(faces[i][:, :, None] == faces[j][:, None, :]).any(axis=(1, 2))
+    every = np.stack([i[apart], j[apart]], axis=1)
+    truth = every[folds._pairs_intersect(v, faces, every)]
+    assert len(truth) > 20  # the soup has intersecting pairs to find
+    origin, h = np.zeros(3), np.ones(3)
+    found = folds._intersecting_pairs(v, faces, origin, h)
+    np.testing.assert_array_equal(found, truth)
+    changed = rng.random(len(faces)) < 0.3
+    found = folds._intersecting_pairs(v, faces, origin, h, changed)
+    np.testing.assert_array_equal(found, truth[changed[truth].any(axis=1)])

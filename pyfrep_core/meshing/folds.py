@@ -36,7 +36,7 @@ import warnings
 import numpy as np
 from scipy.ndimage import maximum_filter
 
-from .loops import _quad_halves
+from .loops import _cell_pairs, _quad_halves
 
 UNFOLD_ROUNDS = 6  # rounds of "find intersecting faces, fan their vertices" (each grows the fanned set)
 PAIR_CHUNK = 1 << 16  # candidate pairs tested at a time (temporaries stay in cache)
@@ -81,7 +81,7 @@ def _boxes(v: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _renumber(faces: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
-    """The vertices (< n) that ``faces`` (F, 3) use, ascending, and the faces in their numbering: what
+    """The vertices (< n) that ``faces`` (F, k) use, ascending, and the faces in their numbering: what
     ``np.unique(faces, return_inverse=True)`` gives, by marking instead of sorting.
 
     >>> used, local = _renumber(np.array([[7, 2, 5], [5, 2, 9]]), 10)
@@ -166,30 +166,10 @@ def _candidate_pairs(
         face, key, own = face[keep], key[keep], own[keep]
     order = np.argsort(2 * key + own)  # by cell, the faces that do not hold its only vertex first
     face, key, own = face[order], key[order], own[order]
-    start = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
-    end = np.repeat(np.r_[start[1:], len(key)], np.diff(np.r_[start, len(key)]))
-    lo, hi = _boxes(v, faces)  # (3, F): one gather per axis below
-    corner_ids = np.ascontiguousarray(faces.T)
-    out = []
-    idx = np.flatnonzero(~own)
-    k = 1
-    while len(idx):
-        idx = idx[idx + k < end[idx]]
-        a, b = face[idx], face[idx + k]
-        keep = changed[a] | changed[b] if changed is not None else np.ones(len(a), dtype=bool)
-        for d in range(3):
-            keep &= (lo[d][a] <= hi[d][b]) & (lo[d][b] <= hi[d][a])
-        a, b = a[keep], b[keep]
-        fa = [corner_ids[i][a] for i in range(3)]
-        fb = [corner_ids[i][b] for i in range(3)]
-        apart = np.ones(len(a), dtype=bool)
-        for i in range(3):
-            for j in range(3):
-                apart &= fa[i] != fb[j]
-        a, b = a[apart], b[apart]
-        out.append(np.minimum(a, b) * len(faces) + np.maximum(a, b))
-        k += 1
-    pairs = np.unique(np.concatenate(out)) if out else np.zeros(0, dtype=np.int64)
+    lo, hi = _boxes(v, faces)  # (3, F)
+    if changed is None:
+        changed = np.ones(len(faces), dtype=bool)
+    pairs = np.unique(_cell_pairs(face, key, own, lo, hi, np.ascontiguousarray(faces), changed))
     return np.stack([pairs // len(faces), pairs % len(faces)], axis=1)
 
 
@@ -205,9 +185,10 @@ def _pairs_intersect(v: np.ndarray, faces: np.ndarray, pairs: np.ndarray) -> np.
     exactly when an edge of one meets the other (the ends of their common segment lie on edges).
 
     First each triangle must reach both sides of the other's plane (or touch it), with the planes
-    computed once per face; the edge tests run on the pairs left.
+    computed once per face of a pair; the edge tests run on the pairs left.
     """
-    corner = v[faces].transpose(1, 2, 0)  # (corner, coordinate, face)
+    used, pairs = _renumber(pairs, len(faces))  # the faces of the pairs only
+    corner = v[faces[used]].transpose(1, 2, 0)  # (corner, coordinate, face)
     e1, e2 = corner[1] - corner[0], corner[2] - corner[0]
     normal = np.stack([e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2], e1[0] * e2[1] - e1[1] * e2[0]])
     hit = np.zeros(len(pairs), dtype=bool)

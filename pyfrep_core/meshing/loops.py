@@ -675,3 +675,60 @@ def _owned_quads(
             positive[edge_axis[e]] += 1
         corner[k] = (positive[0] * (ncell[1] + 1) + positive[1]) * (ncell[2] + 1) + positive[2]
     return quads, corner, crossing, crossing_gradient
+
+
+@_jit
+def _cell_pairs(
+    face: np.ndarray,
+    key: np.ndarray,
+    own: np.ndarray,
+    lo: np.ndarray,
+    hi: np.ndarray,
+    faces: np.ndarray,
+    changed: np.ndarray,
+) -> np.ndarray:
+    """Codes ``min * F + max`` (with repeats) of the pairs of faces that share a cell and may meet.
+
+    The (face, cell) entries ``face``, ``key``, ``own`` (K,) are sorted by cell, the entries that
+    do not hold the cell's only vertex (``own`` False) first; each of those is paired with the
+    entries after it in its cell.  A pair is kept when one of its faces is ``changed`` (F,), their
+    bounding boxes ``lo``, ``hi`` (3, F) overlap and they share no vertex (``faces`` (F, 3)).
+    """
+    n = face.shape[0]
+    nf = faces.shape[0]
+    out = np.empty(max(16, n), dtype=np.int64)
+    m = 0
+    end = n
+    for i in range(n - 1, -1, -1):
+        if i < n - 1 and key[i] != key[i + 1]:
+            end = i + 1
+        if own[i]:
+            continue
+        a = face[i]
+        for j in range(i + 1, end):
+            b = face[j]
+            if not (changed[a] or changed[b]):
+                continue
+            if (
+                lo[0, a] > hi[0, b]
+                or lo[0, b] > hi[0, a]
+                or lo[1, a] > hi[1, b]
+                or lo[1, b] > hi[1, a]
+                or lo[2, a] > hi[2, b]
+                or lo[2, b] > hi[2, a]
+            ):
+                continue
+            shared = False
+            for u in range(3):
+                for w in range(3):
+                    if faces[a, u] == faces[b, w]:
+                        shared = True
+            if shared:
+                continue
+            if m == out.shape[0]:
+                grown = np.empty(2 * m, dtype=np.int64)
+                grown[:m] = out
+                out = grown
+            out[m] = min(a, b) * nf + max(a, b)
+            m += 1
+    return out[:m].copy()

@@ -17,8 +17,10 @@ $(STAMP): pyproject.toml constraints.txt
 	$(PIP) install -c constraints.txt torch==2.13.0
 	$(PIP) install -c constraints.txt -e ".[dev]"
 	@# the meshers' compiled loops, once (numba caches them): else the first mesh after an install waits ~12 s
-	$(PY) -c "from pyfrep_core import polygonize; from pyfrep_core.models import fig1_part; \
-		[polygonize(fig1_part, ((-1.1,) * 3, (1.1,) * 3), 32, method=m, progress=False) for m in ('mc', 'dc')]"
+	@# (a lattice's mesh runs the fold search's loops too)
+	$(PY) -c "from pyfrep_core import polygonize; from pyfrep_core.models import fig1_part, microstructure; \
+		[polygonize(fig1_part, ((-1.1,) * 3, (1.1,) * 3), 32, method=m, progress=False) for m in ('mc', 'dc')]; \
+		polygonize(microstructure, microstructure.bounds, 24, method='dc', progress=False)"
 	@touch $(STAMP)
 
 setup: $(STAMP)

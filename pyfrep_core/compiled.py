@@ -140,6 +140,11 @@ class CompiledModel(Model):
         config = torch._dynamo.config
         config.recompile_limit = max(config.recompile_limit, RECOMPILE_LIMIT)
         self._lock = threading.Lock()
+        # the variants (dtype, device, grad f, grad mode) called once: a variant's first call compiles it, and a
+        # second thread meeting it meanwhile would compile it again (dynamo does not look again
+        # once it holds its lock), so first calls take turns
+        self._variants: set[tuple[torch.dtype, torch.device, bool, bool]] = set()
+        self._first_call = threading.Lock()
         self._second_order_kernels: dict[tuple[torch.dtype, torch.device], Any] = {}
         self.second_order_failure: BaseException | None = None
 
@@ -188,8 +193,14 @@ class CompiledModel(Model):
             return self.eager.fn(x, **params)
         try:
             # the thread count is part of what a kernel is compiled for: one, whoever calls
+            variant = (flat.dtype, flat.device, flat.requires_grad, torch.is_grad_enabled())
             with intra_op_threads(self._threads(flat)):
-                out = self._kernel(flat, **args)
+                if variant in self._variants:
+                    out = self._kernel(flat, **args)
+                else:
+                    with self._first_call:
+                        out = self._kernel(flat, **args)
+                        self._variants.add(variant)
         except Exception as error:  # noqa: BLE001  (any compiler failure: the eager model decides)
             out = self.eager.fn(x, **params)  # a genuine error in the model raises here
             self._failed("failure", error, "torch.compile", "evaluating eagerly")

@@ -603,3 +603,27 @@ def test_interval_bounds_of_a_compiled_model_are_the_eager_ones_and_leave_its_ke
     np.testing.assert_allclose(values, fig1_part(x, r=0.35), rtol=1e-12, atol=1e-12)
     m = polygonize(f, ((-1.1,) * 3, (1.1,) * 3), 24, method="dc", progress=False)
     assert f.failure is None and m.n_faces > 0
+
+
+def test_threads_meeting_a_new_variant_compile_it_once():
+    @model()
+    def plate(x):  # a code object of its own: no variant compiled yet
+        return 0.2 - x[:, 2].abs()
+
+    fast = compiled(plate)
+    x = torch.rand(1000, 3, dtype=torch.float64) - 0.5
+    start = threading.Barrier(4)
+
+    def first_call():
+        start.wait()  # the four threads meet the float64 variant at once
+        with torch.no_grad():
+            return fast(x)
+
+    before = compiled_graphs()
+    threads = [threading.Thread(target=first_call) for _ in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert compiled_graphs() - before == 1  # one compiled, three waited for it
+    torch.testing.assert_close(fast(x), plate(x), rtol=0, atol=0)

@@ -57,10 +57,19 @@ def _largest_span(cell: np.ndarray, faces: np.ndarray) -> int:
     for d in range(3):
         column = np.ascontiguousarray(cell[:, d])
         for start in range(0, len(faces), SLAB_FACES):
-            a, b, c = (column[faces[start : start + SLAB_FACES, k]] for k in range(3))
-            span = np.maximum(np.maximum(a, b), c) - np.minimum(np.minimum(a, b), c)
-            reach = max(reach, int(span.max(initial=0)))
+            lo, hi = _corner_range(column, faces[start : start + SLAB_FACES])
+            reach = max(reach, int((hi - lo).max(initial=0)))
     return reach
+
+
+def _corner_range(column: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The least and the greatest of a per-vertex value (V,) over each face's (F, 3) three corners.
+
+    >>> _corner_range(np.array([4, 1, 7]), np.array([[0, 1, 2], [2, 0, 0]]))
+    (array([1, 4]), array([7, 7]))
+    """
+    a, b, c = (column[faces[:, k]] for k in range(3))
+    return np.minimum(np.minimum(a, b), c), np.maximum(np.maximum(a, b, out=a), c, out=b)
 
 
 def _boxes(v: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -73,10 +82,7 @@ def _boxes(v: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     lo = np.empty((3, len(faces)))
     hi = np.empty((3, len(faces)))
     for d in range(3):
-        column = np.ascontiguousarray(v[:, d])
-        a, b, c = (column[faces[:, k]] for k in range(3))
-        np.minimum(np.minimum(a, b, out=lo[d]), c, out=lo[d])
-        np.maximum(np.maximum(a, b, out=hi[d]), c, out=hi[d])
+        lo[d], hi[d] = _corner_range(np.ascontiguousarray(v[:, d]), faces)
     return lo, hi
 
 
@@ -232,10 +238,7 @@ def _intersecting_pairs(
     if len(faces) <= SLAB_FACES:
         pairs = _candidate_pairs(v, faces, origin, h, changed)
         return pairs[_pairs_intersect(v, faces, pairs)]
-    layer = np.floor((v[:, 0] - origin[0]) / h[0]).astype(np.int64)
-    a, b, c = (layer[faces[:, k]] for k in range(3))
-    first, last = np.minimum(np.minimum(a, b), c), np.maximum(np.maximum(a, b), c)
-    del a, b, c
+    first, last = _corner_range(np.floor((v[:, 0] - origin[0]) / h[0]).astype(np.int64), faces)
     # layer boundaries such that at most SLAB_FACES faces start in each slab (at least one layer)
     start, count = np.unique(first, return_counts=True)
     bounds, total = [start[0]], 0

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import contextlib
 import contextvars
+import functools
 import math
 import threading
 import warnings
@@ -169,6 +170,10 @@ def _vjp(
 
 def _derivatives(f: Callable, x: torch.Tensor, order: int, create_graph: bool) -> tuple[torch.Tensor, ...]:
     """f, grad f and (order 2) the Hessian at x (N, d): 1 backward pass + d for the Hessian rows."""
+    if order == 1 and not create_graph:
+        fused = _fused_first_order(f, x)
+        if fused is not None:
+            return fused
     # one backward pass and no graph kept: a compiled model may differentiate its fused kernel
     once = first_order() if order == 1 and not create_graph else contextlib.nullcontext()
     with torch.enable_grad():
@@ -183,6 +188,17 @@ def _derivatives(f: Callable, x: torch.Tensor, order: int, create_graph: bool) -
             rows = [_vjp(g[:, i], xr, torch.ones_like(g[:, i]), create_graph) for i in range(x.shape[-1])]
             out = (y, g, torch.stack(rows, dim=1))
     return out if create_graph else tuple(t.detach() for t in out)
+
+
+def _fused_first_order(f: Callable, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor] | None:
+    """f and grad f from a compiled model's fused kernel (:meth:`CompiledModel.value_and_grad`), for the
+    model itself or ``functools.partial(model, **params)``; None for any other f, or where it declines."""
+    params: dict[str, Any] = {}
+    if isinstance(f, functools.partial) and not f.args:
+        f, params = f.func, dict(f.keywords)
+    if not isinstance(f, CompiledModel):
+        return None
+    return f.value_and_grad(x, **params)
 
 
 # ----------------------------------------------------------------------------- first derivatives

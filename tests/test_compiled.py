@@ -62,20 +62,26 @@ def in_bounds(m, n, seed):
 
 
 @contextmanager
-def kernel_calls(fast):
-    """Record the number of points of every call that reaches ``fast``'s compiled kernel."""
+def kernel_calls(fast, which=("_kernel", "_first_order_kernel")):
+    """Record the number of points of every call that reaches ``fast``'s compiled kernels (``which``:
+    the values' kernel, whose autograd passes give first derivatives too, and the fused first-order one)."""
     sizes = []
-    kernel = fast._kernel
+    kernels = {name: getattr(fast, name) for name in which}
 
-    def counting(flat, **params):
-        sizes.append(flat.shape[0])
-        return kernel(flat, **params)
+    def counting(kernel):
+        def count(flat, **params):
+            sizes.append(flat.shape[0])
+            return kernel(flat, **params)
 
-    fast._kernel = counting
+        return count
+
+    for name, kernel in kernels.items():
+        setattr(fast, name, counting(kernel))
     try:
         yield sizes
     finally:
-        fast._kernel = kernel
+        for name, kernel in kernels.items():
+            setattr(fast, name, kernel)
 
 
 def compiled_graphs():
@@ -181,6 +187,53 @@ def test_value_and_grad_through_the_kernel_equals_eager(fast, name):
     np.testing.assert_allclose(gradient, want_gradient, rtol=1e-12, atol=1e-12 * scale)
     assert isinstance(only_gradient, torch.Tensor) and only_gradient.dtype == torch.float64
     np.testing.assert_array_equal(only_gradient.numpy(), gradient)
+
+
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
+def test_first_derivatives_come_from_one_fused_kernel_bit_for_bit(fast, dtype):
+    """value_and_grad and grad of a compiled model (no graph kept): the fused kernel alone, with the
+    values and gradients of autograd's passes through the values' kernel, in x's kind, dtype and layout."""
+    f, params = fast["fig1_part"], CASES["fig1_part"][1]
+    x = torch.as_tensor(in_bounds(fig1_part, 3000, seed=24), dtype=dtype)
+    with kernel_calls(f, ("_kernel",)) as plain, kernel_calls(f, ("_first_order_kernel",)) as fused:
+        value, gradient = value_and_grad(functools.partial(f, **params), x)
+        only_gradient = grad(functools.partial(f, **params), x.numpy())
+        value_t, gradient_t = value_and_grad(functools.partial(f, **params), x.t().contiguous().t())
+    assert plain == [] and fused == [3000, 3000, 3000] and f.first_order_failure is None
+    # autograd's backward through the values' kernel, as before the fused kernel
+    xr = x.clone().requires_grad_(True)
+    with first_order(), kernel_calls(f, ("_kernel",)) as before:
+        want_value = f(xr, **params)
+        (want_gradient,) = torch.autograd.grad(want_value.sum(), xr)
+    assert before == [3000]
+    assert value.dtype == gradient.dtype == dtype and gradient.stride() == (3, 1)
+    torch.testing.assert_close(value, want_value.detach(), rtol=0, atol=0)
+    torch.testing.assert_close(gradient, want_gradient, rtol=0, atol=0)
+    assert isinstance(only_gradient, np.ndarray) and only_gradient.dtype == x.numpy().dtype
+    np.testing.assert_array_equal(only_gradient, gradient.numpy())
+    assert gradient_t.stride() == (1, 3000)  # a component-first x: a component-first gradient
+    torch.testing.assert_close(gradient_t, gradient, rtol=0, atol=0)
+    torch.testing.assert_close(value_t, value, rtol=0, atol=0)
+
+
+def test_the_fused_first_order_kernel_declines_what_autograd_must_do(fast):
+    """None (autograd's passes decide) for batched parameters, one point, a transform or forward AD."""
+    f = fast["ball"]
+    x = torch.as_tensor(in_bounds(ball, 300, seed=25))
+    assert f.value_and_grad(x, r=torch.tensor([0.6, 1.0]), cx=0.3) is None
+    assert f.value_and_grad(x[:1], **BALL) is None
+    assert f.value_and_grad(x[0], **BALL) is None
+    assert torch.func.vmap(lambda p: torch.tensor(f.value_and_grad(p[None].expand(2, 3), **BALL) is None))(x[:3]).all()
+    import torch.autograd.forward_ad as fwad
+
+    with fwad.dual_level():
+        dual = fwad.make_dual(x, torch.ones_like(x))
+        assert f.value_and_grad(dual, **BALL) is None
+    # and where it runs, the ball's closed forms
+    value, gradient = f.value_and_grad(x, **BALL)
+    d = x.numpy() - BALL_CENTER
+    np.testing.assert_allclose(value.numpy(), BALL["r"] ** 2 - (d * d).sum(1), rtol=0, atol=1e-14)
+    np.testing.assert_allclose(gradient.numpy(), -2 * d, rtol=0, atol=1e-14)
 
 
 def test_param_derivative_of_a_compiled_model_is_the_eager_one(fast):

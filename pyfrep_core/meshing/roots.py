@@ -19,6 +19,7 @@ import numpy as np
 import torch
 
 from .._array import validated_inputs
+from ..compiled import CompiledModel
 from ..diff import project_to_surface, value_and_grad
 from ..evaluate import evaluate
 from ..model import Model
@@ -94,8 +95,10 @@ def _value_and_grad(f: Callable, x: np.ndarray, device: Any) -> tuple[np.ndarray
         return np.zeros(0), np.zeros((0, 3))
     t = torch.as_tensor(x, dtype=torch.float64, device=device)
     hint = _chunk_points(f, 0)  # a compiled model's chunk size, else diff's default
+    # a compiled model differentiates through its fused kernel (diff's passes find it): not bound
+    g = f if isinstance(f, CompiledModel) else _bound(f, device)
     with validated_inputs():  # vertices and roots in their cells: finite, not read again
-        value, gradient = value_and_grad(_bound(f, device), t, chunk=hint or None)
+        value, gradient = value_and_grad(g, t, chunk=hint or None)
     return value.cpu().numpy(), gradient.cpu().numpy()
 
 

@@ -38,55 +38,70 @@ def _classify_blocks(
     (c & 1, c >> 1 & 1, c >> 2 & 1) has f > 0), the crossing edges' keys (E,) int64 (flat start
     node + axis * nodes) and f at their start and end (E,) float64, block by block.  Edges on
     faces shared by two blocks come once from each.
+
+    Each block's classes are read once into bits; a block of one class (the bounds kept it, the
+    samples show no crossing) is passed over, and a cell's configuration joins the four-corner
+    codes of its two z-faces (each face is shared by the cells below and above it).
     """
     k = v.shape[0]
-    n1, n2 = shape[1], shape[2]
+    n0, n1, n2 = shape[0], shape[1], shape[2]
     c1, c2 = n1 - 1, n2 - 1
-    n_nodes = shape[0] * n1 * n2
+    n_nodes = n0 * n1 * n2
     cell_keys = np.empty(k * s * s * s, dtype=np.int64)
     configs = np.empty(k * s * s * s, dtype=np.uint8)
     edge_keys = np.empty(3 * k * s * (s + 1) * (s + 1), dtype=np.int64)
     f0 = np.empty(3 * k * s * (s + 1) * (s + 1))
     f1 = np.empty(3 * k * s * (s + 1) * (s + 1))
+    bits = np.empty((s + 1, s + 1, s + 1), dtype=np.uint8)
     nc = 0
     ne = 0
     for b in range(k):
         bx, by, bz = part[b, 0] * s, part[b, 1] * s, part[b, 2] * s
-        for i in range(s + 1):
-            gx = bx + i
-            if gx > shape[0] - 1:
-                break
-            for j in range(s + 1):
-                gy = by + j
-                if gy > n1 - 1:
-                    break
-                for m in range(s + 1):
-                    gz = bz + m
-                    if gz > n2 - 1:
-                        break
-                    here = v[b, i, j, m]
-                    inside = here > 0
-                    node = (gx * n1 + gy) * n2 + gz
-                    # the edges from this node along +x, +y, +z
-                    if i < s and gx < shape[0] - 1 and (v[b, i + 1, j, m] > 0) != inside:
-                        edge_keys[ne], f0[ne], f1[ne] = node, here, v[b, i + 1, j, m]
+        # the block's last node inside the grid, per axis (the rest is padding)
+        ni, nj, nm = min(s, n0 - 1 - bx), min(s, n1 - 1 - by), min(s, n2 - 1 - bz)
+        first = v[b, 0, 0, 0] > 0
+        mixed = False
+        for i in range(ni + 1):
+            for j in range(nj + 1):
+                for m in range(nm + 1):
+                    inside = v[b, i, j, m] > 0
+                    bits[i, j, m] = inside
+                    mixed |= inside != first
+        if not mixed:
+            continue
+        # the edges from each node along +x, +y, +z whose ends differ in class
+        for i in range(ni + 1):
+            for j in range(nj + 1):
+                node = ((bx + i) * n1 + by + j) * n2 + bz
+                for m in range(nm + 1):
+                    here = bits[i, j, m]
+                    if i < ni and bits[i + 1, j, m] != here:
+                        edge_keys[ne], f0[ne], f1[ne] = node + m, v[b, i, j, m], v[b, i + 1, j, m]
                         ne += 1
-                    if j < s and gy < n1 - 1 and (v[b, i, j + 1, m] > 0) != inside:
-                        edge_keys[ne], f0[ne], f1[ne] = node + n_nodes, here, v[b, i, j + 1, m]
+                    if j < nj and bits[i, j + 1, m] != here:
+                        edge_keys[ne], f0[ne], f1[ne] = node + m + n_nodes, v[b, i, j, m], v[b, i, j + 1, m]
                         ne += 1
-                    if m < s and gz < n2 - 1 and (v[b, i, j, m + 1] > 0) != inside:
-                        edge_keys[ne], f0[ne], f1[ne] = node + 2 * n_nodes, here, v[b, i, j, m + 1]
+                    if m < nm and bits[i, j, m + 1] != here:
+                        edge_keys[ne], f0[ne], f1[ne] = node + m + 2 * n_nodes, v[b, i, j, m], v[b, i, j, m + 1]
                         ne += 1
-                    # the cell with this node as its lower corner
-                    if i < s and j < s and m < s and gx < shape[0] - 1 and gy < c1 and gz < c2:
-                        config = 0
-                        for c in range(8):
-                            if v[b, i + (c & 1), j + (c >> 1 & 1), m + (c >> 2 & 1)] > 0:
-                                config |= 1 << c
-                        if config != 0 and config != 255:
-                            cell_keys[nc] = (gx * c1 + gy) * c2 + gz
-                            configs[nc] = config
-                            nc += 1
+        # the cells: corners (0, 0, 0) .. (1, 1, 0) are bits 0-3, the face above bits 4-7
+        for i in range(ni):
+            for j in range(nj):
+                below = bits[i, j, 0] | bits[i + 1, j, 0] << 1 | bits[i, j + 1, 0] << 2 | bits[i + 1, j + 1, 0] << 3
+                cell = ((bx + i) * c1 + by + j) * c2 + bz
+                for m in range(nm):
+                    above = (
+                        bits[i, j, m + 1]
+                        | bits[i + 1, j, m + 1] << 1
+                        | bits[i, j + 1, m + 1] << 2
+                        | bits[i + 1, j + 1, m + 1] << 3
+                    )
+                    config = below | above << 4
+                    below = above
+                    if config != 0 and config != 255:
+                        cell_keys[nc] = cell + m
+                        configs[nc] = config
+                        nc += 1
     return cell_keys[:nc].copy(), configs[:nc].copy(), edge_keys[:ne].copy(), f0[:ne].copy(), f1[:ne].copy()
 
 

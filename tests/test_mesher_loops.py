@@ -2,6 +2,8 @@
 dual contouring's slabs and threads: the same mesh however the grid is cut.
 """
 
+from concurrent.futures import ThreadPoolExecutor
+
 import numpy as np
 import pytest
 import torch
@@ -11,7 +13,6 @@ from pyfrep_core import polygonize, sphere
 from pyfrep_core.meshing import dual_contouring
 from pyfrep_core.meshing.loops import (
     _classify_blocks,
-    _compact,
     _edge_points,
     _symmetric_eigen3,
     _unbias_requests,
@@ -91,11 +92,17 @@ def test_block_classification_matches_a_plain_loop(seed):
     assert found == edges and len(edge_keys) == sum(len(pairs) for pairs in edges.values())
 
 
-def test_compaction_keeps_the_used_vertices_in_order_and_renumbers_faces():
-    faces = np.array([[5, 2, 7], [7, 2, 9]])
-    kept = _compact(faces, 10)
-    np.testing.assert_array_equal(kept, [2, 5, 7, 9])
-    np.testing.assert_array_equal(faces, [[1, 0, 2], [2, 0, 3]])
+@pytest.mark.parametrize("workers", [1, 2, 3])
+def test_compaction_keeps_the_used_vertices_in_order_and_renumbers_faces(workers):
+    rng = np.random.default_rng(workers)
+    faces = rng.integers(0, 5000, size=(3000, 3))  # about 1 in 6 vertices never used
+    used = np.unique(faces)
+    want = np.searchsorted(used, faces)
+    with ThreadPoolExecutor(workers) as pool:
+        kept = dual_contouring._compact(faces, 5000, pool.submit, workers)
+    assert 0 < len(kept) < 5000
+    np.testing.assert_array_equal(kept, used)
+    np.testing.assert_array_equal(faces, want)
 
 
 def test_edge_points_are_component_first_and_on_their_edges():

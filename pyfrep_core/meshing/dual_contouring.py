@@ -68,18 +68,21 @@ from ..progress import Progress
 from .folds import _without_folds
 from .grid import CHUNK_POINTS, _check_memory, _chunk_points, _resolution, _return_freed_memory, grid_axes
 from .loops import (
-    _compact,
     _edge_points,
     _edge_vertices,
     _gather_rows,
+    _mark_used,
     _move_in_cells,
+    _number_used,
     _owned_quads,
     _qef_sums,
+    _renumber,
     _solve_qefs,
     _take_rows,
     _unbias_requests,
     _unbias_scale,
     _unit_normals,
+    _unit_rows,
 )
 from .mesh_type import Mesh
 from .octree import Samples, prune, sample_blocks
@@ -503,7 +506,7 @@ def _contour(
     faces, verts, fanned = _without_folds(*parts_left, lo, spacing)
     del parts_left
     trim()
-    used = _compact(faces, len(verts))  # faces renumbered in place
+    used = _compact(faces, len(verts), on_worker, workers)  # faces renumbered in place
     verts = np.take(verts, used, axis=0)
     in_cell = int(np.searchsorted(used, n))  # vertices in cells sorted first, then crossings
     gradient = np.empty_like(verts)
@@ -517,7 +520,32 @@ def _contour(
         gradient[moved] = _value_and_grad(f, verts[moved], device)[1]
     _take_rows(point_gradient, used[in_cell:] - n, gradient[in_cell:])  # known at the crossings
     del point_gradient, used
-    return Mesh(verts, faces, _normals(gradient, verts, faces), gradient=gradient)
+    # -grad f / |grad f|, the rows in parts on the workers
+    unit = (np.zeros_like(gradient), np.empty(len(gradient), dtype=np.bool_))
+    ranges = _ranges(len(gradient), workers)
+    for job in [on_worker(_unit_rows, gradient[a:b], -1.0, unit[0][a:b], unit[1][a:b]) for a, b in ranges]:
+        job.result()
+    return Mesh(verts, faces, _normals(gradient, verts, faces, unit), gradient=gradient)
+
+
+def _compact(faces: np.ndarray, n_vertices: int, on_worker: Callable[..., Future], workers: int) -> np.ndarray:
+    """The vertices (U,) that ``faces`` (F, 3) use, in order; ``faces`` renumbered to them in place (the
+    passes over the faces in ``workers`` parts of rows, side by side).
+
+    >>> faces = np.array([[5, 2, 7], [7, 2, 9]])
+    >>> with ThreadPoolExecutor(2) as pool:
+    ...     kept = _compact(faces, 10, pool.submit, 2)
+    >>> kept.tolist(), faces.tolist()
+    ([2, 5, 7, 9], [[1, 0, 2], [2, 0, 3]])
+    """
+    index = np.full(n_vertices, -1, dtype=np.int64)
+    parts = [faces[a:b] for a, b in _ranges(len(faces), workers)]
+    for job in [on_worker(_mark_used, part, index) for part in parts]:
+        job.result()
+    kept = _number_used(index)
+    for job in [on_worker(_renumber, part, index) for part in parts]:
+        job.result()
+    return kept
 
 
 def _ranges(n: int, parts: int) -> list[tuple[int, int]]:

@@ -509,42 +509,58 @@ def _move_in_cells(
 
 
 @_jit
-def _unit_normals(gradient: np.ndarray, sign: float) -> tuple[np.ndarray, np.ndarray]:
-    """``sign`` grad f / |grad f| per row of ``gradient`` (V, 3) (-1: outward normals), and whether
-    |grad f| was finite and nonzero (V,) (the normal is 0 where not)."""
-    n = gradient.shape[0]
-    normals = np.zeros((n, 3))
-    good = np.empty(n, dtype=np.bool_)
-    for i in range(n):
+def _unit_rows(gradient: np.ndarray, sign: float, normals: np.ndarray, good: np.ndarray) -> None:
+    """In place: ``normals`` (V, 3) = ``sign`` grad f / |grad f| per row of ``gradient`` (V, 3), and ``good``
+    (V,) whether |grad f| was finite and nonzero (the row is left as it was where not)."""
+    for i in range(gradient.shape[0]):
         g0, g1, g2 = gradient[i, 0], gradient[i, 1], gradient[i, 2]
         length = np.sqrt(g0 * g0 + g1 * g1 + g2 * g2)
         good[i] = np.isfinite(length) and length > 0
         if good[i]:
             scale = sign / length
             normals[i, 0], normals[i, 1], normals[i, 2] = g0 * scale, g1 * scale, g2 * scale
+
+
+@_jit
+def _unit_normals(gradient: np.ndarray, sign: float) -> tuple[np.ndarray, np.ndarray]:
+    """``sign`` grad f / |grad f| per row of ``gradient`` (V, 3) (-1: outward normals), and whether
+    |grad f| was finite and nonzero (V,) (the normal is 0 where not)."""
+    normals = np.zeros((gradient.shape[0], 3))
+    good = np.empty(gradient.shape[0], dtype=np.bool_)
+    _unit_rows(gradient, sign, normals, good)
     return normals, good
 
 
 @_jit
-def _compact(faces: np.ndarray, n_vertices: int) -> np.ndarray:
-    """The vertices (U,) that ``faces`` (F, 3) use, in order; ``faces`` renumbered to them in place."""
-    index = np.full(n_vertices, -1, dtype=np.int64)
+def _mark_used(faces: np.ndarray, index: np.ndarray) -> None:
+    """``index[v] = 0`` for every vertex v that ``faces`` (F, 3) use (rows of faces may be marked from
+    several threads at once: they write the same value)."""
     for i in range(faces.shape[0]):
         for k in range(3):
             index[faces[i, k]] = 0
+
+
+@_jit
+def _number_used(index: np.ndarray) -> np.ndarray:
+    """The marked vertices (``index`` 0, others -1) numbered in order, in place; returns them (U,)."""
     used = 0
-    for v in range(n_vertices):
+    for v in range(index.shape[0]):
         if index[v] == 0:
             index[v] = used
             used += 1
     kept = np.empty(used, dtype=np.int64)
-    for v in range(n_vertices):
+    for v in range(index.shape[0]):
         if index[v] >= 0:
             kept[index[v]] = v
+    return kept
+
+
+@_jit
+def _renumber(faces: np.ndarray, index: np.ndarray) -> None:
+    """``faces`` (F, 3) renumbered in place through ``index`` (V,)."""
     for i in range(faces.shape[0]):
         for k in range(3):
             faces[i, k] = index[faces[i, k]]
-    return kept
 
 
 @_jit

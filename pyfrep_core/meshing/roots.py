@@ -351,9 +351,12 @@ def _cubic_slope(r: np.ndarray, b1: np.ndarray, twice_b2: np.ndarray, b3: np.nda
     return slope
 
 
-def _normals(gradient: np.ndarray, verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Unit outward normals -grad f / |grad f|; the area-weighted face normal where grad f vanishes."""
-    normals, good = _unit_normals(np.asarray(gradient, dtype=np.float64), -1.0)
+def _normals(
+    gradient: np.ndarray, verts: np.ndarray, faces: np.ndarray, unit: tuple[np.ndarray, np.ndarray] | None = None
+) -> np.ndarray:
+    """Unit outward normals -grad f / |grad f|; the area-weighted face normal where grad f vanishes.
+    ``unit``: the first part, ``_unit_normals(gradient, -1.0)``, when the caller has it."""
+    normals, good = _unit_normals(np.asarray(gradient, dtype=np.float64), -1.0) if unit is None else unit
     if good.all():
         return normals
     if len(faces):

@@ -25,7 +25,7 @@ from pyfrep_core import (
     torusZ,
     value_and_grad,
 )
-from pyfrep_core.meshing import folds
+from pyfrep_core.meshing import dual_contouring, folds
 from pyfrep_core.meshing.grid import grid_axes
 from pyfrep_core.meshing.octree import prune
 from pyfrep_core.models import fig1_part
@@ -439,6 +439,39 @@ def test_polygonize_reports_progress_and_stops(method):
     stop.set()
     assert polygonize(fig1_part, BOX, 64, method=method, stop=stop, progress=False).is_empty()
     assert polygonize(fig1_part, BOX, 64, method=method, callback=lambda e: True, progress=False).is_empty()
+
+
+def test_dual_contouring_stops_promptly_and_raises_a_slabs_error_across_its_slabs(monkeypatch):
+    monkeypatch.setattr(dual_contouring, "SLAB_POINTS", 20000)  # a dozen blocks a slab: many slabs, one chunk each
+    whole = []
+    assert polygonize(fig1_part, BOX, 64, method="dc", callback=whole.append, progress=False).n_faces > 0
+    assert whole[-1].total == 6  # six slabs of whole block layers, one chunk each
+    events = []
+    stopped = polygonize(fig1_part, BOX, 64, method="dc", callback=lambda e: events.append(e) or len(events) >= 2)
+    assert stopped.is_empty()
+    assert len(events) <= 2 + dual_contouring.WORKERS  # only the slabs begun when asked sample on
+    calls = []
+
+    def failing(x):
+        if type(x) is torch.Tensor and x.dtype == torch.float32:  # the samples (roots: float64; bounds: a subclass)
+            calls.append(len(x))
+            if len(calls) == 3:  # the third slab's: the fourth waits for its carry
+                raise RuntimeError("the model failed on the third slab")
+        return fig1_part(x)
+
+    result = []
+
+    def mesh():
+        try:
+            polygonize(failing, BOX, 64, method="dc", progress=False)
+        except RuntimeError as error:
+            result.append(error)
+
+    thread = threading.Thread(target=mesh)
+    thread.start()
+    thread.join(timeout=300)
+    assert not thread.is_alive(), "a slab waited forever for the slab that failed"
+    assert len(result) == 1 and "third slab" in str(result[0])
 
 
 @pytest.mark.parametrize("pad", [0, 1, 3])

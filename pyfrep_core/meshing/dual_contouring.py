@@ -271,35 +271,40 @@ def dual_contour(
 
             return pool.submit(one)
 
-        def in_parallel(fn: Callable, items: list) -> list:
-            """[fn(item) for item in items] on the workers."""
-            return [job.result() for job in [on_worker(fn, item) for item in items]]
+        # each slab of whole block layers along x is sampled and contoured by one worker, ``workers``
+        # slabs at a time (the compiled loops and torch's kernels run without the GIL): the memory of
+        # the samples and of their Hermite data stays bounded.  A slab's last cell layer (its
+        # vertices) is carried to the next slab, whose first vertex is known once the slab is
+        # sampled: ``ready[k]`` is (carry, next first vertex) after slab k's samples (None: stopped),
+        # so a worker waits for the previous slab's samples only, never for its contouring
+        ready: list[Future] = [Future() for _ in slabs]
+        stopped = threading.Event()  # asked to stop: the slabs not yet begun return at once
 
-        def sample(slab: tuple[np.ndarray, int, int]) -> Samples | None:
-            return sample_blocks(f, axes, slab[0], block, dtype, device, counted)
-
-        def contour(job: tuple) -> _Vertices:
-            return _slab(f, *job, lo, hi, spacing, cells, device, tol)
-
-        # slabs of whole block layers along x, ``workers`` at a time, each on its own thread (the
-        # compiled loops and torch's kernels run without the GIL): the memory of the samples and
-        # of their Hermite data stays bounded; each slab's last cell layer (its vertices) is carried
-        # to the next slab, whose first vertex is known once the slab is sampled
-        parts, carry, offset = [], None, 0
-        for first_slab in range(0, len(slabs), workers):
-            group = slabs[first_slab : first_slab + workers]
-            samples = in_parallel(sample, group)
-            if any(s is None for s in samples):
-                return empty
-            jobs = []
-            for s, (_, first, end) in zip(samples, group):
+        def slab(k: int) -> _Vertices | None:
+            part, first, end = slabs[k]
+            try:
+                s = None if stopped.is_set() else sample_blocks(f, axes, part, block, dtype, device, counted)
+                if s is None:
+                    stopped.set()
+                before = ready[k - 1].result() if k else (None, 0)  # submitted first: never waits on this one
+                if s is None or before is None:
+                    ready[k].set_result(None)
+                    return None
+                carry, offset = before
                 if len(s.f0) == 0:
-                    carry = None
-                    continue
-                jobs.append((s, carry, first, end, offset))
-                carry, offset = _last_layer(s, end, offset)
-            parts.extend(in_parallel(contour, jobs))
-            del samples, jobs
+                    ready[k].set_result((None, offset))
+                    return _NO_SURFACE
+                ready[k].set_result(_last_layer(s, end, offset))
+            except BaseException as error:
+                if not ready[k].done():
+                    ready[k].set_exception(error)  # the next slabs raise it too, instead of waiting
+                raise
+            return _slab(f, s, carry, first, end, offset, lo, hi, spacing, cells, device, tol)
+
+        parts = [job.result() for job in [on_worker(slab, k) for k in range(len(slabs))]]
+        if any(p is None for p in parts):
+            return empty
+        parts = [p for p in parts if p is not _NO_SURFACE]
         if not parts or sum(len(p.quads) for p in parts) == 0:
             warnings.warn(
                 "polygonize: f does not change sign inside the bounds; empty mesh", RuntimeWarning, stacklevel=2
@@ -446,6 +451,9 @@ def _numbering(s: Samples, offset: int) -> tuple[np.ndarray, np.ndarray, int]:
     n_comp = _N_COMPONENTS[s.config].astype(np.int64)
     first_vertex = np.cumsum(n_comp) - n_comp + offset
     return n_comp, first_vertex, int(n_comp.sum())
+
+
+_NO_SURFACE = object()  # a slab without crossing edges
 
 
 class _Counted:

@@ -301,16 +301,21 @@ def dual_contour(
                 raise
             return _slab(f, s, carry, first, end, offset, lo, hi, spacing, cells, device, tol)
 
-        parts = [job.result() for job in [on_worker(slab, k) for k in range(len(slabs))]]
-        if any(p is None for p in parts):
-            return empty
-        parts = [p for p in parts if p is not _NO_SURFACE]
-        if not parts or sum(len(p.quads) for p in parts) == 0:
+        # the slabs' vertices and quads joined in order by this thread while the workers go on
+        joined = _Joined(len(slabs))
+        for job in [on_worker(slab, k) for k in range(len(slabs))]:
+            part = job.result()
+            if part is None:
+                return empty
+            if part is not _NO_SURFACE:
+                joined.append(part)
+            del part
+        if joined.quads == 0:
             warnings.warn(
                 "polygonize: f does not change sign inside the bounds; empty mesh", RuntimeWarning, stacklevel=2
             )
             return empty
-        return _contour(f, parts, lo, hi, spacing, device, on_worker, workers)
+        return _contour(f, joined.result(), lo, hi, spacing, device, on_worker, workers)
 
 
 def _slabs(blocks: np.ndarray, block: int, ncell_x: int, limit: int, workers: int) -> list[tuple[np.ndarray, int, int]]:
@@ -456,6 +461,45 @@ def _numbering(s: Samples, offset: int) -> tuple[np.ndarray, np.ndarray, int]:
 _NO_SURFACE = object()  # a slab without crossing edges
 
 
+class _Joined:
+    """The slabs' :class:`_Vertices` appended in order, field by field, into buffers sized for all the
+    slabs from the first one's share (one in ``slabs``, plus a margin) and grown by half when full:
+    each slab's copy is freed once appended, so the whole mesh is never held twice.
+
+    >>> parts = [_Vertices(*([np.full((n, 3), float(n))] * 5 + [np.arange(n)] * 4)) for n in (2, 1, 4)]
+    >>> joined = _Joined(2)
+    >>> for part in parts:
+    ...     joined.append(part)
+    >>> joined.result().x[:, 0].tolist(), joined.quads
+    ([2.0, 2.0, 1.0, 4.0, 4.0, 4.0, 4.0], 7)
+    """
+
+    def __init__(self, slabs: int) -> None:
+        self.slabs = slabs
+        self.buffers: list[np.ndarray] = []
+        self.sizes: list[int] = []
+        self.quads = 0
+
+    def append(self, part: _Vertices) -> None:
+        if not self.buffers:
+            self.buffers = [np.empty((int(len(a) * self.slabs * 1.1) + 16, *a.shape[1:]), a.dtype) for a in part]
+            self.sizes = [0] * len(part)
+        for i, a in enumerate(part):
+            size, buffer = self.sizes[i], self.buffers[i]
+            if size + len(a) > len(buffer):
+                grown = np.empty((max(size + len(a), len(buffer) * 3 // 2), *a.shape[1:]), a.dtype)
+                grown[:size] = buffer[:size]
+                self.buffers[i] = buffer = grown
+            buffer[size : size + len(a)] = a
+            self.sizes[i] = size + len(a)
+        self.quads += len(part.quads)
+
+    def result(self) -> _Vertices:
+        out = _Vertices(*[buffer[:size] for buffer, size in zip(self.buffers, self.sizes)])
+        self.buffers = []
+        return out
+
+
 class _Counted:
     """A progress that counts the chunks done, whichever thread and slab they come from (in order)."""
 
@@ -470,7 +514,7 @@ class _Counted:
 
 def _contour(
     f: Callable,
-    parts: list[_Vertices],
+    v: _Vertices,
     lo: np.ndarray,
     hi: np.ndarray,
     spacing: np.ndarray,
@@ -478,21 +522,9 @@ def _contour(
     on_worker: Callable[..., Future],
     workers: int,
 ) -> Mesh:
-    """The mesh from all slabs' vertices and quads (``parts``, emptied): each quad cut at its
-    crossing into four triangles, unbiasing, folds, compaction, grad f (``on_worker(fn, *args)``
-    runs on one of the ``workers`` while this thread goes on)."""
-    columns = [list(column) for column in zip(*parts)]
-    parts.clear()
-
-    def join(column: list[np.ndarray]) -> np.ndarray:
-        whole = np.concatenate(column)
-        column.clear()
-        return whole
-
-    # field by field on the workers (NumPy copies without the GIL), each slab's copy freed once
-    # joined: memory for one copy and a field per worker
-    v = _Vertices(*[job.result() for job in [on_worker(join, column) for column in columns]])
-    del columns
+    """The mesh from all slabs' vertices and quads ``v`` (joined): each quad cut at its crossing
+    into four triangles, unbiasing, folds, compaction, grad f (``on_worker(fn, *args)`` runs on
+    one of the ``workers`` while this thread goes on)."""
     # freed pages go back to the system only for large meshes: it bounds the peak there, and costs
     # their page faults again (a sixth of the time at 256^3) where memory is no concern
     trim = _return_freed_memory if len(v.quads) > TRIM_QUADS else lambda: None

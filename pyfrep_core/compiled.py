@@ -219,9 +219,10 @@ class CompiledModel(Model):
 
         The forward and backward passes are traced together (``torch.func.grad_and_value``) and
         compiled into one loop: no autograd graph, saved buffers or backward engine at run time
-        (the Fig. 1 part, float64, one core: 0.9 ms for 26,000 points against 1.9 ms through the
-        compiled kernel's autograd; 70 us against 450 us for 300).  :func:`pyfrep_core.value_and_grad`
-        and :func:`pyfrep_core.grad` take it for a compiled model where no graph is kept.  Values
+        (the Fig. 1 part, float64, one core: 0.33 ms for 300 points, 1.4 ms for 26,000, against 0.53
+        and 2.0 ms by autograd through the values' kernel; ``benchmarks/gradient.py``).
+        :func:`pyfrep_core.value_and_grad` and :func:`pyfrep_core.grad` take it for a compiled model
+        where no graph is kept, in calls of up to ``chunk_points`` points, one piece per thread.  Values
         and gradients are those of the autograd passes, bit for bit, in x's dtype, device and layout.
 
         Returns None (the caller differentiates as before) for a transform or forward-mode AD active,

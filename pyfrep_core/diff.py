@@ -190,15 +190,19 @@ def _derivatives(f: Callable, x: torch.Tensor, order: int, create_graph: bool) -
     return out if create_graph else tuple(t.detach() for t in out)
 
 
-def _fused_first_order(f: Callable, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor] | None:
-    """f and grad f from a compiled model's fused kernel (:meth:`CompiledModel.value_and_grad`), for the
-    model itself or ``functools.partial(model, **params)``; None for any other f, or where it declines."""
+def _compiled_of(f: Callable) -> tuple[CompiledModel, dict[str, Any]] | None:
+    """The compiled model f is, or that ``functools.partial(model, **params)`` binds, with the params."""
     params: dict[str, Any] = {}
     if isinstance(f, functools.partial) and not f.args:
         f, params = f.func, dict(f.keywords)
-    if not isinstance(f, CompiledModel):
-        return None
-    return f.value_and_grad(x, **params)
+    return (f, params) if isinstance(f, CompiledModel) else None
+
+
+def _fused_first_order(f: Callable, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor] | None:
+    """f and grad f from a compiled model's fused kernel (:meth:`CompiledModel.value_and_grad`), for the
+    model itself or ``functools.partial(model, **params)``; None for any other f, or where it declines."""
+    found = _compiled_of(f)
+    return None if found is None else found[0].value_and_grad(x, **found[1])
 
 
 # ----------------------------------------------------------------------------- first derivatives
@@ -218,7 +222,8 @@ def value_and_grad(f: Callable, x: Any, create_graph: bool = False, chunk: int |
     f : callable, (N, d) -> (N,)
     x : (N, d) points, numpy or torch, float32 or float64, any device.
     create_graph : keep the graph (for use inside a loss); then no chunking is done.
-    chunk : points per pass; default on the CPU 8192 in float64, 16384 in float32 (in parallel threads); 2^18 elsewhere.
+    chunk : points per pass; default on the CPU 8192 in float64, 16384 in float32 (in parallel threads), for a
+        compiled model up to its ``chunk_points`` (one piece per thread); 2^18 elsewhere.
 
     Returns
     -------
@@ -236,6 +241,10 @@ def value_and_grad(f: Callable, x: Any, create_graph: bool = False, chunk: int |
     if create_graph:
         y, g = _value_and_grad(f, t, True)
     else:
+        found = _compiled_of(f) if chunk is None and t.device.type == "cpu" else None
+        if found is not None:  # a fused kernel: calls as large as its chunk, one piece per thread
+            per_thread = -(-t.shape[0] // max(1, torch.get_num_threads()))
+            chunk = max(_chunk_size(t, None), min(found[0].chunk_points, per_thread))
         y, g = _map_chunks(lambda c: _value_and_grad(f, c), t, chunk)
     return _out((y, g), was_numpy, batch)
 

@@ -32,6 +32,7 @@ from pyfrep_core import (
     torusZ,
     value_and_grad,
 )
+from pyfrep_core._threads import intra_op_threads
 from pyfrep_core.compiled import CompiledModel, compiled, first_order, warm_up
 from pyfrep_core.models import ellipse, fig1_part, microstructure, pawn, schwarz_d
 from pyfrep_core.sensitivity import param_derivative
@@ -214,6 +215,18 @@ def test_first_derivatives_come_from_one_fused_kernel_bit_for_bit(fast, dtype):
     assert gradient_t.stride() == (1, 3000)  # a component-first x: a component-first gradient
     torch.testing.assert_close(gradient_t, gradient, rtol=0, atol=0)
     torch.testing.assert_close(value_t, value, rtol=0, atol=0)
+
+
+def test_first_derivatives_of_a_compiled_model_come_in_large_calls_one_per_thread(fast):
+    f = fast["fig1_part"]
+    x = torch.as_tensor(in_bounds(fig1_part, 20_000, seed=26))
+    want = value_and_grad(fig1_part, x, chunk=20_000)
+    for threads, sizes_wanted in ((1, [20_000]), (2, [10_000, 10_000])):
+        with intra_op_threads(threads), kernel_calls(f, ("_first_order_kernel",)) as sizes:
+            value, gradient = value_and_grad(f, x)  # default chunk: not the eager passes' 8192
+        assert sorted(sizes) == sizes_wanted, threads
+        torch.testing.assert_close(value, want[0], rtol=1e-12, atol=1e-12)
+        torch.testing.assert_close(gradient, want[1], rtol=1e-12, atol=1e-11)
 
 
 def test_the_fused_first_order_kernel_declines_what_autograd_must_do(fast):

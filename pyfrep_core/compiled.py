@@ -223,7 +223,8 @@ class CompiledModel(Model):
         and 2.0 ms by autograd through the values' kernel; ``benchmarks/gradient.py``).
         :func:`pyfrep_core.value_and_grad` and :func:`pyfrep_core.grad` take it for a compiled model
         where no graph is kept, in calls of up to ``chunk_points`` points, one piece per thread.  Values
-        and gradients are those of the autograd passes, bit for bit, in x's dtype, device and layout.
+        and gradients are those of the autograd passes to rounding (bit for bit on the 2-core
+        machine), in x's dtype, device and layout.
 
         Returns None (the caller differentiates as before) for a transform or forward-mode AD active,
         batched parameters, fewer than two points, anything but (N, d) points, a failed compile, or

@@ -191,9 +191,10 @@ def test_value_and_grad_through_the_kernel_equals_eager(fast, name):
 
 
 @pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
-def test_first_derivatives_come_from_one_fused_kernel_bit_for_bit(fast, dtype):
+def test_first_derivatives_come_from_one_fused_kernel_with_autograds_values(fast, dtype):
     """value_and_grad and grad of a compiled model (no graph kept): the fused kernel alone, with the
-    values and gradients of autograd's passes through the values' kernel, in x's kind, dtype and layout."""
+    values and gradients of autograd's passes through the values' kernel (to rounding), in x's kind,
+    dtype and layout."""
     f, params = fast["fig1_part"], CASES["fig1_part"][1]
     x = torch.as_tensor(in_bounds(fig1_part, 3000, seed=24), dtype=dtype)
     with kernel_calls(f, ("_kernel",)) as plain, kernel_calls(f, ("_first_order_kernel",)) as fused:
@@ -208,8 +209,11 @@ def test_first_derivatives_come_from_one_fused_kernel_bit_for_bit(fast, dtype):
         (want_gradient,) = torch.autograd.grad(want_value.sum(), xr)
     assert before == [3000]
     assert value.dtype == gradient.dtype == dtype and gradient.stride() == (3, 1)
-    torch.testing.assert_close(value, want_value.detach(), rtol=0, atol=0)
-    torch.testing.assert_close(gradient, want_gradient, rtol=0, atol=0)
+    # two compiled graphs of the same operations: equal to rounding (bit for bit here, but fusion may
+    # order them otherwise on another CPU); 16 ulp of the values' and gradients' scale
+    eps = 16 * torch.finfo(dtype).eps
+    torch.testing.assert_close(value, want_value.detach(), rtol=eps, atol=eps * float(want_value.abs().max()))
+    torch.testing.assert_close(gradient, want_gradient, rtol=eps, atol=eps * float(want_gradient.abs().max()))
     assert isinstance(only_gradient, np.ndarray) and only_gradient.dtype == x.numpy().dtype
     np.testing.assert_array_equal(only_gradient, gradient.numpy())
     assert gradient_t.stride() == (1, 3000)  # a component-first x: a component-first gradient

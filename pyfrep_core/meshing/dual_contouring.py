@@ -274,9 +274,10 @@ def dual_contour(
         # each slab of whole block layers along x is sampled and contoured by one worker, ``workers``
         # slabs at a time (the compiled loops and torch's kernels run without the GIL): the memory of
         # the samples and of their Hermite data stays bounded.  A slab's last cell layer (its
-        # vertices) is carried to the next slab, whose first vertex is known once the slab is
-        # sampled: ``ready[k]`` is (carry, next first vertex) after slab k's samples (None: stopped),
-        # so a worker waits for the previous slab's samples only, never for its contouring
+        # vertices) is carried to the next slab, and its vertices are numbered after those of the
+        # slabs before it: ``ready[k]`` is slab k's (carry numbered from 0, vertex count) once it is
+        # sampled (None: stopped), so a worker finds its Hermite data before it waits for the slabs
+        # before it, and then waits for their samples only, never for their contouring
         ready: list[Future] = [Future() for _ in slabs]
         stopped = threading.Event()  # asked to stop: the slabs not yet begun return at once
 
@@ -286,20 +287,22 @@ def dual_contour(
                 s = None if stopped.is_set() else sample_blocks(f, axes, part, block, dtype, device, counted)
                 if s is None:
                     stopped.set()
-                before = ready[k - 1].result() if k else (None, 0)  # submitted first: never waits on this one
-                if s is None or before is None:
                     ready[k].set_result(None)
                     return None
-                carry, offset = before
-                if len(s.f0) == 0:
-                    ready[k].set_result((None, offset))
-                    return _NO_SURFACE
-                ready[k].set_result(_last_layer(s, end, offset))
+                ready[k].set_result(_last_layer(s, end))
+                hermite = _hermite(f, s, lo, spacing, device, tol) if len(s.f0) else None
+                before = [r.result() for r in ready[:k]]  # submitted first: never wait on this one
             except BaseException as error:
                 if not ready[k].done():
                     ready[k].set_exception(error)  # the next slabs raise it too, instead of waiting
                 raise
-            return _slab(f, s, carry, first, end, offset, lo, hi, spacing, cells, device, tol)
+            if any(b is None for b in before):
+                return None
+            if hermite is None:
+                return _NO_SURFACE
+            offset = sum(count for _, count in before)
+            carry = _numbered(before[-1][0], offset - before[-1][1]) if k else None
+            return _slab(s, hermite, carry, first, end, offset, lo, hi, spacing, cells, f, device)
 
         # the slabs' vertices and quads joined in order by this thread while the workers go on
         joined = _Joined(len(slabs))
@@ -393,8 +396,8 @@ class _Vertices(NamedTuple):
 
 
 def _slab(
-    f: Callable,
     s: Samples,
+    hermite: tuple[np.ndarray, np.ndarray, np.ndarray],
     carry: tuple[np.ndarray, np.ndarray, np.ndarray] | None,
     first: int,
     end: int,
@@ -403,17 +406,18 @@ def _slab(
     hi: np.ndarray,
     spacing: np.ndarray,
     cells: tuple[int, int, int],
+    f: Callable,
     device: Any,
-    tol: float | None,
 ) -> _Vertices:
     """Vertices of the mixed cells of the slab of cell layers [first, end) along x, numbered from
     ``offset``, and the quads of the crossing edges that start in it (node x in [first, end)).
 
-    ``s`` holds every edge of these cells (their blocks' nodes reach layer ``end``); ``carry`` is
-    the previous slab's last cell layer (flat keys, global first vertex, configuration), whose
-    vertices the quads of edges on layer ``first`` need (:func:`_last_layer`).
+    ``s`` holds every edge of these cells (their blocks' nodes reach layer ``end``), ``hermite``
+    their roots, unit normals and grad f (:func:`_hermite`); ``carry`` is the previous slab's last
+    cell layer (flat keys, global first vertex, configuration), whose vertices the quads of edges on
+    layer ``first`` need (:func:`_last_layer`).
     """
-    points, normal, point_gradient = _hermite(f, s, lo, spacing, device, tol)
+    points, normal, point_gradient = hermite
     ncell = np.asarray(cells, dtype=np.int64)
     # vertices: one per (cell, component)
     n_comp, first_vertex, n_vert = _numbering(s, offset)
@@ -442,12 +446,20 @@ def _slab(
     return _Vertices(x, mass, smooth_gradient, vcell.astype(np.int32), np.repeat(_CONFINED[s.config], n_comp), *quads)
 
 
-def _last_layer(s: Samples, end: int, offset: int) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray], int]:
-    """A slab's carry for the next one (its last cell layer ``end - 1``: flat keys, global first vertex,
-    configuration), its vertices numbered from ``offset``, and the next slab's first vertex."""
-    _, first_vertex, n_vert = _numbering(s, offset)
+def _last_layer(s: Samples, end: int) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray], int]:
+    """A slab's carry for the next one (its last cell layer ``end - 1``: flat keys, first vertex with the
+    slab's vertices numbered from 0, configuration) and its number of vertices."""
+    _, first_vertex, n_vert = _numbering(s, 0)
     last = s.cell[:, 0] == end - 1
-    return (s.cell_key[last], first_vertex[last], s.config[last]), offset + n_vert
+    return (s.cell_key[last], first_vertex[last], s.config[last]), n_vert
+
+
+def _numbered(
+    carry: tuple[np.ndarray, np.ndarray, np.ndarray], offset: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A carry of :func:`_last_layer` with its slab's vertices numbered from ``offset``."""
+    keys, first_vertex, config = carry
+    return keys, first_vertex + offset, config
 
 
 def _numbering(s: Samples, offset: int) -> tuple[np.ndarray, np.ndarray, int]:

@@ -512,3 +512,26 @@ def test_the_fold_search_finds_every_intersecting_pair_of_a_triangle_soup(seed):
     changed = rng.random(len(faces)) < 0.3
     found = folds._intersecting_pairs(v, faces, origin, h, changed)
     np.testing.assert_array_equal(found, truth[changed[truth].any(axis=1)])
+
+
+def test_a_vertex_without_faces_is_dropped_and_the_rest_is_the_mesh_without_it(monkeypatch):
+    # a sphere of half a cell at a corner of the bounds crosses only the three edges on the bounds'
+    # faces there, which have no quad (fewer than four cells): its cell's vertex is in no face
+    box, n = ((-1.0,) * 3, (1.0,) * 3), 21
+    corner = torch.tensor([-1.0, -1.0, -1.0])
+
+    def with_corner(x):
+        return torch.maximum(sphere(x, r=0.6), sphere(x - corner.to(x.dtype), r=0.5 * 2.0 / (n - 1)))
+
+    kept = []
+    compact = dual_contouring._compact
+    monkeypatch.setattr(dual_contouring, "_compact", lambda *a: kept.append(compact(*a)) or kept[-1])
+    a = polygonize(with_corner, box, n, method="dc", progress=False)
+    assert kept[0] is not None and len(kept[0]) == a.n_vertices  # compacted: one vertex fewer
+    kept.clear()
+    b = polygonize(lambda x: sphere(x, r=0.6), box, n, method="dc", progress=False)
+    assert kept == [None]  # every vertex in a face: taken as it is
+    assert np.unique(a.faces).tolist() == list(range(a.n_vertices))
+    # far from the corner the union is the sphere's f, bit for bit: the same mesh, gradients included
+    for name in ("vertices", "faces", "normals", "gradient"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name))

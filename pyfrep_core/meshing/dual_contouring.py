@@ -559,19 +559,26 @@ def _contour(
     del parts_left
     trim()
     used = _compact(faces, len(verts), on_worker, workers)  # faces renumbered in place
-    verts = np.take(verts, used, axis=0)
-    in_cell = int(np.searchsorted(used, n))  # vertices in cells sorted first, then crossings
-    gradient = np.empty_like(verts)
-    for (a, b), job in zip(ranges, cell_gradient):  # each part's rows among those kept (sorted)
-        first, last = np.searchsorted(used[:in_cell], [a, b])
-        _take_rows(job.result()[1], used[first:last] - a, gradient[first:last])
-    del cell_gradient, x
-    if len(fanned) and in_cell:  # the fanned vertices' rows after compaction, where they are used
-        moved = np.searchsorted(used[:in_cell], fanned)
-        moved = moved[(moved < in_cell) & (used[np.minimum(moved, in_cell - 1)] == fanned)]
+    if used is None:  # every vertex used (the surface stays off the bounds, nothing dropped): as they are
+        gradient = np.concatenate([job.result()[1] for job in cell_gradient] + [point_gradient])
+        moved = fanned
+    else:
+        kept = np.empty((len(used), 3))
+        _take_rows(verts, used, kept)
+        verts = kept
+        in_cell = int(np.searchsorted(used, n))  # vertices in cells sorted first, then crossings
+        gradient = np.empty_like(verts)
+        for (a, b), job in zip(ranges, cell_gradient):  # each part's rows among those kept (sorted)
+            first, last = np.searchsorted(used[:in_cell], [a, b])
+            _take_rows(job.result()[1], used[first:last] - a, gradient[first:last])
+        _take_rows(point_gradient, used[in_cell:] - n, gradient[in_cell:])  # known at the crossings
+        moved = np.zeros(0, dtype=np.int64)
+        if len(fanned) and in_cell:  # the fanned vertices' rows after compaction, where they are used
+            moved = np.searchsorted(used[:in_cell], fanned)
+            moved = moved[(moved < in_cell) & (used[np.minimum(moved, in_cell - 1)] == fanned)]
+    del cell_gradient, x, point_gradient, used
+    if len(moved):  # grad f again where a fold moved them to their mass points
         gradient[moved] = _value_and_grad(f, verts[moved], device)[1]
-    _take_rows(point_gradient, used[in_cell:] - n, gradient[in_cell:])  # known at the crossings
-    del point_gradient, used
     # -grad f / |grad f|, the rows in parts on the workers
     unit = (np.zeros_like(gradient), np.empty(len(gradient), dtype=np.bool_))
     ranges = _ranges(len(gradient), workers)
@@ -580,21 +587,25 @@ def _contour(
     return Mesh(verts, faces, _normals(gradient, verts, faces, unit), gradient=gradient)
 
 
-def _compact(faces: np.ndarray, n_vertices: int, on_worker: Callable[..., Future], workers: int) -> np.ndarray:
+def _compact(faces: np.ndarray, n_vertices: int, on_worker: Callable[..., Future], workers: int) -> np.ndarray | None:
     """The vertices (U,) that ``faces`` (F, 3) use, in order; ``faces`` renumbered to them in place (the
-    passes over the faces in ``workers`` parts of rows, side by side).
+    passes over the faces in ``workers`` parts of rows, side by side).  None where they use every
+    vertex (``faces`` unchanged).
 
     >>> faces = np.array([[5, 2, 7], [7, 2, 9]])
     >>> with ThreadPoolExecutor(2) as pool:
     ...     kept = _compact(faces, 10, pool.submit, 2)
-    >>> kept.tolist(), faces.tolist()
-    ([2, 5, 7, 9], [[1, 0, 2], [2, 0, 3]])
+    ...     every = _compact(faces, 4, pool.submit, 2)
+    >>> kept.tolist(), faces.tolist(), every
+    ([2, 5, 7, 9], [[1, 0, 2], [2, 0, 3]], None)
     """
     index = np.full(n_vertices, -1, dtype=np.int64)
     parts = [faces[a:b] for a, b in _ranges(len(faces), workers)]
     for job in [on_worker(_mark_used, part, index) for part in parts]:
         job.result()
     kept = _number_used(index)
+    if len(kept) == n_vertices:
+        return None
     for job in [on_worker(_renumber, part, index) for part in parts]:
         job.result()
     return kept

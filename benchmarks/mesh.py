@@ -36,8 +36,13 @@ operations, several times faster there); resolution (n - 1) / side voxels per un
 has n cells along the shortest side where our grid has n - 1 (n = 128, 256); 2 worker threads
 (``LIBFIVE_THREADS``) pinned to at most 2 CPUs, through the exported C++ entry that takes
 libfive's settings (the C API's fixed 8 threads spin when idle); time: median, best and CPU
-seconds (less sensitive to other jobs on the machine).  Without it, a line says the peer was
-not run.  libfive is not on PyPI as a library; to build it in a temporary folder (Debian)::
+seconds (less sensitive to other jobs on the machine).  ``paired`` (Fig. 1 part and gyroid, up
+to 256^3): ``dc+compiled`` and ``lf-native`` in one process, taking turns 2 runs + 1 times (which
+goes first alternates), so that both meet the same phase of a machine whose speed drifts by a
+third from hour to hour: their medians and the median of the rounds' ratios, with the least and
+largest.  Each mesher then starts with the caches the other left (both are slower than alone).
+Without it, a line says the peer was not run.  libfive is not on PyPI as a library; to build it
+in a temporary folder (Debian)::
 
     apt-get install -y cmake g++ libeigen3-dev libboost-dev libpng-dev pkg-config
     git clone https://github.com/libfive/libfive /tmp/libfive_src
@@ -482,13 +487,10 @@ LIBFIVE_MODELS = {
 LIBFIVE_THREADS = int(os.environ.get("LIBFIVE_THREADS", "2"))
 
 
-def _libfive_child(case: str, n: int, runs: int, variant: str = "field") -> None:
-    """libfive's mesh of a case at the voxel size of an n^3 grid: seconds (median and best), triangles,
-    volume, flagged faces, MiB, CPU seconds (median); ``LIBFIVE_THREADS`` worker threads on at most 2 CPUs."""
+def _libfive_mesher(case: str, n: int, variant: str = "field"):
+    """libfive's mesher of a case at the voxel size of an n^3 grid, as a function that meshes once and
+    returns (vertices, triangles); ``LIBFIVE_THREADS`` worker threads, this process on at most 2 CPUs."""
     import ctypes
-    import json
-
-    from pyfrep_core.meshing import Mesh
 
     lib = _libfive_library()
     _Five.lib = lib
@@ -527,6 +529,17 @@ def _libfive_child(case: str, n: int, runs: int, variant: str = "field") -> None
         lib.libfive_mesh_delete(out)
         return verts, tris
 
+    return mesh_once
+
+
+def _libfive_child(case: str, n: int, runs: int, variant: str = "field") -> None:
+    """libfive's mesh of a case at the voxel size of an n^3 grid: seconds (median and best), triangles,
+    volume, flagged faces, MiB, CPU seconds (median)."""
+    import json
+
+    from pyfrep_core.meshing import Mesh
+
+    mesh_once = _libfive_mesher(case, n, variant)
     out = mesh_once()  # warm-up
     del out
     _reset_peak()
@@ -545,6 +558,53 @@ def _libfive_child(case: str, n: int, runs: int, variant: str = "field") -> None
     flagged = len(self_intersecting_pairs(mesh))
     figures = [statistics.median(times), min(times), mesh.n_faces, mesh.volume(), flagged, peak / 1024]
     print(json.dumps([*figures, statistics.median(cpu)]))
+
+
+def _paired_child(case: str, method: str, n: int, rounds: int, variant: str) -> None:
+    """Our mesher and libfive's in one process, taking turns ``rounds`` times (which goes first
+    alternates): their median seconds, and the median, least and largest of the rounds' ratios."""
+    import json
+
+    make, bounds, _ = CASES[case]
+    f = make()
+    if method.endswith("+compiled"):
+        f, method = compiled(f), method.removesuffix("+compiled")
+    mesh_once = _libfive_mesher(case, n, variant)  # this process on at most 2 CPUs, as libfive's child
+
+    def ours():
+        return polygonize(f, bounds, n, method=method, progress=False)
+
+    for warm in (ours, mesh_once):
+        warm()
+    times: dict = {ours: [], mesh_once: []}
+    for k in range(rounds):
+        for fn in (ours, mesh_once) if k % 2 == 0 else (mesh_once, ours):
+            t0 = time.perf_counter()
+            out = fn()
+            times[fn].append(time.perf_counter() - t0)
+            del out
+    ratios = [a / b for a, b in zip(times[ours], times[mesh_once])]
+    medians = [statistics.median(times[ours]), statistics.median(times[mesh_once])]
+    print(json.dumps([*medians, statistics.median(ratios), min(ratios), max(ratios)]))
+
+
+def paired_row(case: str, method: str, n: int, rounds: int) -> str:
+    """The paired line of a case (``lf-native`` where written, else ``lf``; see :func:`_paired_child`)."""
+    import json
+    import subprocess
+
+    variant = "native" if "native" in LIBFIVE_MODELS[case] else "field"
+    label = "lf" if variant == "field" else f"lf-{variant}"
+    command = [sys.executable, __file__, "paired-child", case, method, str(n), str(rounds), variant]
+    out = subprocess.run(command, capture_output=True, text=True)
+    if out.returncode:
+        why = out.stderr.strip().splitlines()[-1] if out.stderr.strip() else f"exit status {out.returncode}"
+        return f"paired run failed: {why}"
+    ours, theirs, ratio, least, most = json.loads(out.stdout.strip().splitlines()[-1])
+    return (
+        f"paired (one process, {rounds} rounds taking turns): {method} {ours:.3f} s, {label} {theirs:.3f} s; "
+        f"{method} / {label} = {ratio:.2f}x (rounds {least:.2f}x-{most:.2f}x)"
+    )
 
 
 def libfive_note() -> bool:
@@ -627,6 +687,8 @@ def dual_contouring_table(runs: int) -> None:
         print(f"  {case:>14} {n:4d}^3  " + "\n                         ".join(line) + ratio)
         if peer and n <= 512:
             print("                         " + libfive_row(case, n, runs if n <= 256 else 1, figures))
+        if peer and n <= 256 and case in ("fig1", "gyroid"):
+            print("                         " + paired_row(case, "dc+compiled", n, 2 * runs + 1))
     print(f"  load average after the runs: {', '.join(f'{x:.2f}' for x in os.getloadavg())}")
 
 
@@ -635,6 +697,8 @@ if __name__ == "__main__":
         _child(sys.argv[2], sys.argv[3], int(sys.argv[4]), int(sys.argv[5]))
     elif len(sys.argv) > 1 and sys.argv[1] == "libfive-child":
         _libfive_child(sys.argv[2], int(sys.argv[3]), int(sys.argv[4]), *sys.argv[5:])
+    elif len(sys.argv) > 1 and sys.argv[1] == "paired-child":
+        _paired_child(sys.argv[2], sys.argv[3], int(sys.argv[4]), int(sys.argv[5]), sys.argv[6])
     elif len(sys.argv) > 1 and sys.argv[1] == "dc":
         dual_contouring_table(int(sys.argv[2]) if len(sys.argv) > 2 else (3 if QUICK else 5))
     else:

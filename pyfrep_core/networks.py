@@ -25,7 +25,7 @@ Two initialisations:
 >>> import torch
 >>> g = ImplicitNetwork(((-2.0,) * 3, (2.0,) * 3), width=256, depth=2, activation="softplus", init="sphere", radius=0.5)
 >>> u = torch.nn.functional.normalize(torch.randn(1000, 3, generator=torch.Generator().manual_seed(0)), dim=1)
->>> [round(float(g.signed_network(r * u).mean()), 1) for r in (0.5, 1.0, 2.0)]  # about 2 (0.5 - r / 2)
+>>> [round(float(g.signed_network(r * u).mean().detach()), 1) for r in (0.5, 1.0, 2.0)]  # about 2 (0.5 - r / 2)
 [0.4, -0.0, -0.9]
 """
 

@@ -514,6 +514,31 @@ def test_the_fold_search_finds_every_intersecting_pair_of_a_triangle_soup(seed):
     np.testing.assert_array_equal(found, truth[changed[truth].any(axis=1)])
 
 
+@pytest.mark.parametrize("seed", range(3))
+def test_coplanar_triangles_meet_only_where_they_overlap_in_their_plane(seed):
+    # pairs of triangles in one plane, turned and moved at random (their corners off the plane by
+    # rounding only, as symmetric parts give): apart (the second beyond a gap of a hundredth of a cell
+    # past a line the first stays behind), or meeting (the second has a corner at the first's centroid)
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(seed)
+    k, h = 300, 0.07
+    first = rng.uniform([-1.0, -1.0], [-0.01, 1.0], (k, 3, 2))
+    apart = rng.uniform([0.0, -1.0], [1.0, 1.0], (k, 3, 2))
+    meeting = rng.uniform(-1.0, 1.0, (k, 3, 2))
+    meeting[:, 0] = first.mean(axis=1)
+    flat = np.concatenate([first, apart, meeting]).reshape(-1, 2) * h
+    turn = Rotation.random(random_state=seed).as_matrix()
+    v = np.concatenate([flat, np.zeros((len(flat), 1))], axis=1) @ turn.T + rng.uniform(-1.0, 1.0, 3)
+    faces = np.arange(len(v)).reshape(-1, 3)
+    pairs = np.concatenate(
+        [np.stack([np.arange(k), k + np.arange(k)], 1), np.stack([np.arange(k), 2 * k + np.arange(k)], 1)]
+    )
+    hit = folds._pairs_intersect(v, faces, pairs)
+    assert not hit[:k].any()
+    assert hit[k:].all()
+
+
 def test_a_vertex_without_faces_is_dropped_and_the_rest_is_the_mesh_without_it(monkeypatch):
     # a sphere of half a cell at a corner of the bounds crosses only the three edges on the bounds'
     # faces there, which have no quad (fewer than four cells): its cell's vertex is in no face

@@ -40,6 +40,10 @@ from .loops import _cell_pairs, _quad_halves
 
 UNFOLD_ROUNDS = 6  # rounds of "find intersecting faces, fan their vertices" (each grows the fanned set)
 PAIR_CHUNK = 1 << 16  # candidate pairs tested at a time (temporaries stay in cache)
+EPS = float(np.finfo(np.float64).eps)
+# a corner this many ulps of |n| (|c| + |c - base|) from the other triangle's plane is in it: the rounding
+# of n . (c - base), with n from differences of coordinates, is a few ulps of that
+COPLANAR_ULPS = 64
 SLAB_FACES = 1 << 18  # faces searched for intersecting pairs at a time (memory of the search)
 DENSE_CELLS = 1 << 22  # cell grids up to this size (or 4 per queried cell) are dilated as grids (see _within)
 
@@ -186,18 +190,66 @@ def _orient(a: np.ndarray, b: np.ndarray, c: np.ndarray, d: np.ndarray) -> np.nd
     return (u[1] * w[2] - u[2] * w[1]) * z[0] + (u[2] * w[0] - u[0] * w[2]) * z[1] + (u[0] * w[1] - u[1] * w[0]) * z[2]
 
 
+def _orient2(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """Twice the signed area of the triangles (a, b, c) in the plane, (2, P) each: > 0 counter-clockwise."""
+    return (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0])
+
+
+def _overlap_in_plane(corner: np.ndarray, normal: np.ndarray, one: np.ndarray, other: np.ndarray) -> np.ndarray:
+    """Whether coplanar triangles ``one``, ``other`` (K,) (indices into ``corner`` (3, 3, F), normals
+    (3, F)) meet, closed: seen along the largest component of the larger one's normal, an edge of one
+    meets an edge of the other, or a corner of one lies in the other.
+
+    >>> corner = np.array([[[0, 1], [0, 0], [0, 0]], [[1, 2], [0, 0], [0, 0]], [[0, 1], [1, 1], [0, 0]]], float)
+    >>> normal = np.array([[0, 0], [0, 0], [1, 1]], float)
+    >>> _overlap_in_plane(corner, normal, np.array([0]), np.array([1])).tolist()   # touching at (1, 0, 0)
+    [True]
+    >>> corner[:, 0, 1] -= 0.6   # the second moved -0.6 along x: it crosses the first's hypotenuse
+    >>> _overlap_in_plane(corner, normal, np.array([0]), np.array([1])).tolist()
+    [True]
+    >>> corner[:, 1, 1] += 0.7   # and 0.7 along y: apart
+    >>> _overlap_in_plane(corner, normal, np.array([0]), np.array([1])).tolist()
+    [False]
+    """
+    # seen along the normal of the larger of the two (a sliver's normal is the rounding's)
+    larger = np.where((normal[:, one] ** 2).sum(axis=0) >= (normal[:, other] ** 2).sum(axis=0), one, other)
+    drop = np.abs(normal[:, larger]).argmax(axis=0)
+    keep = np.stack([(drop + 1) % 3, (drop + 2) % 3])  # (2, K): the plane's coordinates
+    p = [corner[i][keep, one[None]] for i in range(3)]  # (2, K) per corner
+    q = [corner[i][keep, other[None]] for i in range(3)]
+    meet = np.zeros(len(one), dtype=bool)
+    for i in range(3):
+        a, b = p[i], p[(i + 1) % 3]
+        for j in range(3):
+            c, d = q[j], q[(j + 1) % 3]
+            o1, o2, o3, o4 = _orient2(a, b, c), _orient2(a, b, d), _orient2(c, d, a), _orient2(c, d, b)
+            crossing = (o1 * o2 <= 0) & (o3 * o4 <= 0)
+            collinear = (o1 == 0) & (o2 == 0)  # then the segments meet where their spans overlap
+            span = np.all((np.minimum(a, b) <= np.maximum(c, d)) & (np.minimum(c, d) <= np.maximum(a, b)), axis=0)
+            meet |= np.where(collinear, span, crossing)
+    for s, t in ((p, q), (q, p)):  # a corner of one inside the other (it then meets no edge)
+        area = _orient2(*t)
+        inside = [np.sign(_orient2(t[i], t[(i + 1) % 3], s[0])) * np.sign(area) for i in range(3)]
+        meet |= (area != 0) & (inside[0] >= 0) & (inside[1] >= 0) & (inside[2] >= 0)
+    return meet
+
+
 def _pairs_intersect(v: np.ndarray, faces: np.ndarray, pairs: np.ndarray) -> np.ndarray:
     """Whether each pair (P, 2) of triangles intersects: two triangles that are not coplanar meet
     exactly when an edge of one meets the other (the ends of their common segment lie on edges).
 
     First each triangle must reach both sides of the other's plane (or touch it), with the planes
-    computed once per face of a pair; the edge tests run on the pairs left.
+    computed once per face of a pair; the edge tests run on the pairs left.  Pairs where one's corners
+    lie in the other's plane to within rounding (``COPLANAR_ULPS``) are tested in that plane
+    (:func:`_overlap_in_plane`): there the signs of the edge tests would be the rounding's.
     """
     used, pairs = _renumber(pairs, len(faces))  # the faces of the pairs only
     corner = v[faces[used]].transpose(1, 2, 0)  # (corner, coordinate, face)
     e1, e2 = corner[1] - corner[0], corner[2] - corner[0]
     normal = np.stack([e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2], e1[0] * e2[1] - e1[1] * e2[0]])
     hit = np.zeros(len(pairs), dtype=bool)
+    # rounding of a corner's side n . (c - base) over |n|: a few ulps of |c| + |c - base| <= 3 max |v|
+    rounding = COPLANAR_ULPS * EPS * 3 * float(np.abs(corner).max(initial=0.0))
     for first in range(0, len(pairs), PAIR_CHUNK):
         part = pairs[first : first + PAIR_CHUNK]
         maybe = np.ones(len(part), dtype=bool)
@@ -207,7 +259,15 @@ def _pairs_intersect(v: np.ndarray, faces: np.ndarray, pairs: np.ndarray) -> np.
             side = np.stack([np.einsum("cp,cp->p", n, corner[k][:, other] - base) for k in range(3)])
             maybe &= (side.min(axis=0) <= 0) & (side.max(axis=0) >= 0)
             sides.append(side)  # of ``other``'s corners to ``one``'s plane
-        rows = np.flatnonzero(maybe)
+        # coplanar to rounding (symmetric parts make them exactly so): the test above and those below
+        # would read the rounding's signs; such pairs are tested in the plane instead
+        flat = np.zeros(len(part), dtype=bool)  # the corners of one triangle in the other's plane
+        for one, side in zip((part[:, 1], part[:, 0]), sides):
+            flat |= np.abs(side).max(axis=0) <= rounding * np.sqrt((normal[:, one] ** 2).sum(axis=0))
+        coplanar = np.flatnonzero(flat)
+        if len(coplanar):
+            hit[first + coplanar] = _overlap_in_plane(corner, normal, part[coplanar, 0], part[coplanar, 1])
+        rows = np.flatnonzero(maybe & ~flat)
         found = np.zeros(len(rows), dtype=bool)
         for (one, other), side in zip(((part[:, 0], part[:, 1]), (part[:, 1], part[:, 0])), sides):
             # an edge of ``one`` that crosses ``other``'s plane meets ``other`` inside its three edges

@@ -14,11 +14,13 @@ from pyfrep_core.meshing import dual_contouring
 from pyfrep_core.meshing.loops import (
     _classify_blocks,
     _edge_points,
+    _section_points,
+    _section_step,
     _symmetric_eigen3,
     _unbias_requests,
     _unbias_scale,
 )
-from pyfrep_core.meshing.roots import _bracketed_roots
+from pyfrep_core.meshing.roots import SECTION_POINTS, _bracketed_roots
 from pyfrep_core.models import fig1_part
 
 BOX = ((-1.1,) * 3, (1.1,) * 3)
@@ -204,3 +206,62 @@ def test_bracketed_roots_close_in_on_a_kink_from_both_sides():
     )
     assert len(rest) == 0
     np.testing.assert_allclose(root, root_x, atol=1e-12)
+
+
+def test_a_multisection_step_keeps_the_first_sign_change_from_a_and_ends_with_regula_falsi():
+    # brackets [a, p] of three edges along x from 0, of length 2; f(t) = t - root in edge units, one
+    # root on a section point (exact), one with NaN among the values (dropped, no root)
+    a, p = np.array([0.0, 1.0, 0.0]), np.array([1.0, 0.0, 1.0])  # the second runs from 1 down to 0
+    roots = np.array([0.3, 0.6, 0.3])
+    fa, fp = a - roots, p - roots
+    rows, m = np.arange(3), 4
+    t, points = _section_points(
+        rows, np.zeros((3, 3)), np.zeros(3, dtype=np.int64), np.zeros(3), np.full(3, 2.0), a, p, m
+    )
+    np.testing.assert_allclose(t, [0.2, 0.4, 0.6, 0.8, 0.8, 0.6, 0.4, 0.2, 0.2, 0.4, 0.6, 0.8])
+    np.testing.assert_allclose(points[:, 0], 2 * t)
+    ft = t - np.repeat(roots, m)
+    ft[8] = np.nan
+    root = np.full(3, np.nan)
+    moving = _section_step(rows, t, ft, m, a, fa, p, fp, False, root)
+    assert moving.tolist() == [0]  # the second's root is t = 0.6 exactly; the third has a NaN
+    np.testing.assert_allclose([a[0], p[0]], [0.2, 0.4])  # 1/5 of the bracket, around the root
+    assert root[1] == t[5] and np.isnan(root[2])
+    moving = _section_step(
+        moving,
+        *_section_points(moving, np.zeros((3, 3)), np.zeros(3, dtype=np.int64), np.zeros(3), np.full(3, 2.0), a, p, m)[
+            :1
+        ],
+        np.array([0.24, 0.28, 0.32, 0.36]) - 0.3,
+        m,
+        a,
+        fa,
+        p,
+        fp,
+        True,
+        root,
+    )
+    assert len(moving) == 0
+    assert root[0] == pytest.approx(0.3, abs=1e-15)  # regula falsi on a straight line: exact
+
+
+def test_bracketed_roots_narrow_the_edges_where_the_secant_creeps_by_multisection():
+    # the kink of the test above after 3 secant steps only: far from the roots (the plateau), then two
+    # multisection steps put each root within 1/33^2 of its bracket, whatever f's shape there
+    root_x = np.array([0.197, 0.31, 0.52, 0.8])
+    slope, plateau = 0.0548, 4.1e-4
+
+    def f(p):
+        return torch.clamp(slope * (p[:, 0] - 0.197 - p[:, 1]), max=plateau)
+
+    n = len(root_x)
+    start = np.zeros((n, 3))
+    start[:, 1] = root_x - 0.197
+    f0, f1 = -slope * root_x, np.full(n, plateau)
+    c = f0 / (f0 - f1)
+    args = (f, start, start[:, 0].copy(), np.ones(n), np.zeros(n, dtype=np.int64), c, f1 - f0, f0, f1, 1e-12, "cpu", 3)
+    _, rest, estimate = _bracketed_roots(*args)
+    assert len(rest) == n and np.abs(estimate - root_x[rest]).max() > 0.1  # the secant alone: still creeping
+    root, rest, _ = _bracketed_roots(*args, sections=2)
+    assert len(rest) == 0
+    assert np.abs(root - root_x).max() <= 1 / (SECTION_POINTS + 1) ** 2

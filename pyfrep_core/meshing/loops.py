@@ -647,6 +647,85 @@ def _secant_step(
 
 
 @_jit
+def _section_points(
+    rows: np.ndarray,
+    start: np.ndarray,
+    axis: np.ndarray,
+    start_axis: np.ndarray,
+    h: np.ndarray,
+    a: np.ndarray,
+    p: np.ndarray,
+    m: int,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The ``m`` evenly spaced interior points of the brackets [a[r], p[r]] (edge units, either
+    order) of edges ``rows`` (K,): their positions t (K m,) in edge units, row by row, and the points
+    (K m, 3) component-first (as :func:`_edge_points`)."""
+    t = np.empty(rows.shape[0] * m)
+    out = np.empty((3, rows.shape[0] * m))
+    for k in range(rows.shape[0]):
+        r = rows[k]
+        for j in range(m):
+            q = k * m + j
+            t[q] = a[r] + (p[r] - a[r]) * (j + 1) / (m + 1)
+            for d in range(3):
+                out[d, q] = start[r, d]
+            out[axis[r], q] = start_axis[r] + t[q] * h[r]
+    return t, out.T
+
+
+@_jit
+def _section_step(
+    rows: np.ndarray,
+    t: np.ndarray,
+    ft: np.ndarray,
+    m: int,
+    a: np.ndarray,
+    fa: np.ndarray,
+    p: np.ndarray,
+    fp: np.ndarray,
+    last: bool,
+    root: np.ndarray,
+) -> np.ndarray:
+    """One multisection step on the brackets [a, p] (values fa, fp of opposite classes f > 0 / f <= 0)
+    of edges ``rows`` (K,), f ``ft`` at their ``m`` interior points ``t`` (K m,) (:func:`_section_points`);
+    the rows still moving come back.
+
+    Each bracket becomes the first pair of neighbours, from ``a``, among a, the m points and p whose
+    classes differ: (m + 1) times narrower, whatever the shape of f.  A point where f is 0 is the
+    root; on the ``last`` step the root is regula falsi's in the narrowed bracket.  A row with a
+    non-finite value is dropped without a root (NaN).
+    """
+    moving = np.empty(rows.shape[0], dtype=np.int64)
+    n = 0
+    for k in range(rows.shape[0]):
+        r = rows[k]
+        x0, g0, x1, g1 = a[r], fa[r], p[r], fp[r]
+        finite, exact = True, False
+        for j in range(m):
+            v = ft[k * m + j]
+            if not np.isfinite(v):
+                finite = False
+                break
+            if v == 0:
+                root[r] = t[k * m + j]
+                exact = True
+                break
+            if (v > 0) != (g0 > 0):
+                x1, g1 = t[k * m + j], v
+                break
+            x0, g0 = t[k * m + j], v
+        if not finite or exact:
+            continue
+        a[r], fa[r], p[r], fp[r] = x0, g0, x1, g1
+        if last:
+            root[r] = x0 - g0 * (x1 - x0) / (g1 - g0)
+        else:
+            moving[n] = r
+            n += 1
+    return moving[:n]
+
+
+@_jit
 def _quad_halves(quads: np.ndarray, first_crossing: int) -> np.ndarray:
     """The four triangles (crossing, q_i, q_i+1) (4 Q, 3) of each quad (Q, 4), quad by quad; quad k's
     crossing is vertex ``first_crossing + k``."""

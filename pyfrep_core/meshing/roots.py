@@ -24,9 +24,11 @@ from ..diff import project_to_surface, value_and_grad
 from ..evaluate import evaluate
 from ..model import Model
 from .grid import _chunk_points, _map
-from .loops import _edge_points, _secant_step, _unit_normals
+from .loops import _edge_points, _secant_step, _section_points, _section_step, _unit_normals
 
 ROOT_CHUNK = 1 << 14  # vertices per float64 evaluation while projecting (CPU; chunks run in parallel)
+SECTION_POINTS = 32  # points per edge of a multisection step (_bracketed_roots' sections)
+SECTION_ROWS = 1 << 13  # edges per multisection call (their points: 6 MB)
 
 
 def _records(a: np.ndarray) -> np.ndarray:
@@ -264,6 +266,7 @@ def _bracketed_roots(
     step_tol: float,
     device: Any,
     max_iter: int = 12,
+    sections: int = 0,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Roots of f on K axis-aligned edges that bracket one (float64; Dekker's safeguarded secant).
 
@@ -274,8 +277,15 @@ def _bracketed_roots(
     end's value halved after a regula falsi step that did not cross the root); an edge is done when
     the next step is below ``step_tol`` (length units) or f is exactly 0.
 
-    Returns ``root`` (K,) in edge units (NaN where not done), and the rows not done after
-    ``max_iter`` steps with their last estimates ``c``.
+    ``sections``: the edges still moving after ``max_iter`` steps (f bends sharply in their bracket:
+    a kink of min/max or of an R-function's corner, where the secant creeps) have their brackets
+    narrowed that many times by multisection, each 1 / (SECTION_POINTS + 1) as wide whatever f is
+    (:func:`.loops._section_step`; up to SECTION_ROWS edges in one call of f), and their root is
+    regula falsi's in the last bracket: within 1 / (SECTION_POINTS + 1)^sections of the bracket
+    after the secant steps, in ``sections`` calls instead of many more small ones.
+
+    Returns ``root`` (K,) in edge units (NaN where not done), and the rows not done (after
+    ``max_iter`` steps, and the sections) with their last estimates ``c``.
     """
     root = np.full(len(c), np.nan)
     c = np.array(c, dtype=np.float64)  # the estimates, per edge (updated in place by the steps)
@@ -289,6 +299,16 @@ def _bracketed_roots(
         rows = _secant_step(rows, fc, step == 0, f0, f1, slope, h, c, a, fa, p, fp, falsi, step_tol, root)
         if len(rows) == 0:
             break
+    if sections and len(rows):  # the bracket [a, p] of each edge still moving, SECTION_ROWS edges at a time
+        left = []
+        for first in range(0, len(rows), SECTION_ROWS):
+            part = rows[first : first + SECTION_ROWS]
+            for k in range(sections):
+                t, points = _section_points(part, start, axis, start_axis, h, a, p, SECTION_POINTS)
+                ft = _f64(f, points, device)
+                part = _section_step(part, t, ft, SECTION_POINTS, a, fa, p, fp, k == sections - 1, root)
+            left.append(part)
+        rows = np.concatenate(left)
     return root, rows, c[rows]
 
 

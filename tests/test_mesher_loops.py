@@ -185,11 +185,10 @@ def test_dual_contouring_gives_the_same_mesh_however_the_slabs_are_cut(monkeypat
     assert many.volume() == pytest.approx(one.volume(), abs=1e-12)
 
 
-def test_bracketed_roots_close_in_on_a_kink_from_both_sides():
-    # f = min(plateau, slope (x - root)) along edges x in [0, 1] (the root moves with y): nearly flat
-    # (a face grazing the edge) beyond a kink just past the root.  Plain regula falsi keeps the far
-    # end and creeps along the plateau (after 20 steps its estimates were still 0.26-0.30 short of the
-    # roots; it took 60); halving the kept end's value (Illinois) crosses the kink in a few steps.
+def kinked_edges():
+    """Edges x in [0, 1] (the root moves with y) along which f = min(plateau, slope (x - root)): nearly
+    flat (a face grazing the edge) beyond a kink just past the root.  Their roots, and
+    ``_bracketed_roots``' arguments before ``step_tol``."""
     root_x = np.array([0.197, 0.31, 0.52, 0.8])
     slope, plateau = 0.0548, 4.1e-4
 
@@ -201,9 +200,15 @@ def test_bracketed_roots_close_in_on_a_kink_from_both_sides():
     start[:, 1] = root_x - 0.197
     f0, f1 = -slope * root_x, np.full(n, plateau)
     c = f0 / (f0 - f1)
-    root, rest, _ = _bracketed_roots(
-        f, start, start[:, 0].copy(), np.ones(n), np.zeros(n, dtype=np.int64), c, f1 - f0, f0, f1, 1e-12, "cpu", 20
-    )
+    return root_x, (f, start, start[:, 0].copy(), np.ones(n), np.zeros(n, dtype=np.int64), c, f1 - f0, f0, f1)
+
+
+def test_bracketed_roots_close_in_on_a_kink_from_both_sides():
+    # Plain regula falsi keeps the far end and creeps along the plateau (after 20 steps its estimates
+    # were still 0.26-0.30 short of the roots; it took 60); halving the kept end's value (Illinois)
+    # crosses the kink in a few steps.
+    root_x, args = kinked_edges()
+    root, rest, _ = _bracketed_roots(*args, 1e-12, "cpu", 20)
     assert len(rest) == 0
     np.testing.assert_allclose(root, root_x, atol=1e-12)
 
@@ -246,22 +251,12 @@ def test_a_multisection_step_keeps_the_first_sign_change_from_a_and_ends_with_re
 
 
 def test_bracketed_roots_narrow_the_edges_where_the_secant_creeps_by_multisection():
-    # the kink of the test above after 3 secant steps only: far from the roots (the plateau), then two
+    # the kinked edges after 3 secant steps only: far from the roots (the plateau), then two
     # multisection steps put each root within 1/33^2 of its bracket, whatever f's shape there
-    root_x = np.array([0.197, 0.31, 0.52, 0.8])
-    slope, plateau = 0.0548, 4.1e-4
-
-    def f(p):
-        return torch.clamp(slope * (p[:, 0] - 0.197 - p[:, 1]), max=plateau)
-
-    n = len(root_x)
-    start = np.zeros((n, 3))
-    start[:, 1] = root_x - 0.197
-    f0, f1 = -slope * root_x, np.full(n, plateau)
-    c = f0 / (f0 - f1)
-    args = (f, start, start[:, 0].copy(), np.ones(n), np.zeros(n, dtype=np.int64), c, f1 - f0, f0, f1, 1e-12, "cpu", 3)
+    root_x, args = kinked_edges()
+    args = (*args, 1e-12, "cpu", 3)
     _, rest, estimate = _bracketed_roots(*args)
-    assert len(rest) == n and np.abs(estimate - root_x[rest]).max() > 0.1  # the secant alone: still creeping
+    assert len(rest) == len(root_x) and np.abs(estimate - root_x[rest]).max() > 0.1  # the secant alone: still creeping
     root, rest, _ = _bracketed_roots(*args, sections=2)
     assert len(rest) == 0
     assert np.abs(root - root_x).max() <= 1 / (SECTION_POINTS + 1) ** 2

@@ -31,6 +31,9 @@ def intra_op_threads(n: int | None) -> Iterator[None]:
     if int(n) < 1:
         raise ValueError(f"thread count must be >= 1, got {n!r}")
     before = torch.get_num_threads()
+    if before == int(n):  # already so (a mesher's worker, per kernel call): setting it again is not free
+        yield
+        return
     torch.set_num_threads(int(n))
     try:
         yield

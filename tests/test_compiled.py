@@ -396,6 +396,74 @@ def checked_ball(x, r):
     return sphere(x, r=r)
 
 
+def component_first(x, dtype=torch.float64):
+    """Points (N, d) as a tensor of their own laid out component-first (x[:, 0] contiguous)."""
+    x = torch.as_tensor(x, dtype=dtype)
+    return torch.empty_strided(x.shape, (1, x.shape[0]), dtype=dtype).copy_(x)
+
+
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
+def test_a_values_kernel_goes_straight_to_the_kernel_with_the_models_values(fast, dtype):
+    f = fast["fig1_part"]
+    kernel = f.values_kernel(r=0.35)
+    x = component_first(in_bounds(fig1_part, 3000, seed=20), dtype)
+    want = f(x, r=0.35)  # the model's call: the same compiled kernel
+    with kernel_calls(f, ("_kernel",)) as sizes, torch.no_grad():
+        first = kernel(x)  # the first of this dtype: through the model's call
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            again = [kernel(x) for _ in range(3)]
+    assert sizes == [3000] * 4
+    for got in [first, *again]:
+        assert got.dtype == dtype and torch.equal(got, want)
+    # the rest take the model's call, with its values: a row-major layout, a view, a graph, one point
+    rows = x.contiguous()
+    torch.testing.assert_close(kernel(rows), want, rtol=0, atol=0)
+    torch.testing.assert_close(kernel(x[:100]), want[:100], rtol=0, atol=0)
+    xg = x.clone().requires_grad_(True)
+    (g,) = torch.autograd.grad(kernel(xg).sum(), xg)
+    (want_g,) = torch.autograd.grad(fig1_part(xg, r=0.35).sum(), xg)
+    scale = float(want_g.abs().max())
+    tol = 1e-12 if dtype == torch.float64 else 1e-4  # autograd's passes, eager and compiled, to rounding
+    torch.testing.assert_close(g, want_g, rtol=tol, atol=tol * scale)
+    torch.testing.assert_close(kernel(x[:1].clone()), fig1_part(x[:1], r=0.35), rtol=1e-6, atol=1e-6)
+
+
+def test_a_values_kernel_from_two_threads_and_after_a_failure_gives_the_models_values(fast):
+    f = compiled(ball)
+    kernel = f.values_kernel(**BALL)
+    xs = [component_first(in_bounds(ball, 2000, seed=s)) for s in (21, 22)]
+    want = [BALL["r"] ** 2 - ((x.numpy() - BALL_CENTER) ** 2).sum(1) for x in xs]
+    kernel(xs[0])  # compiled here
+    start, got, errors = threading.Barrier(2), {}, []
+
+    def run(i):
+        try:
+            start.wait()
+            got[i] = [kernel(xs[i]) for _ in range(20)]
+        except Exception as error:  # reported below
+            errors.append(error)
+
+    threads = [threading.Thread(target=run, args=(i,)) for i in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(timeout=120)
+    assert not errors, errors
+    for i in range(2):
+        for values in got[i]:
+            np.testing.assert_allclose(values.numpy(), want[i], rtol=0, atol=1e-14)
+
+    def broken(flat, **params):
+        raise RuntimeError("no C++ compiler found")
+
+    f._kernel = broken  # a failure: the kernel is not called again, the eager model answers
+    with pytest.warns(RuntimeWarning, match="no C\\+\\+ compiler found"):
+        np.testing.assert_allclose(kernel(xs[0]).numpy(), want[0], rtol=0, atol=1e-14)
+    assert f.failure is not None
+    np.testing.assert_allclose(kernel(xs[1]).numpy(), want[1], rtol=0, atol=1e-14)
+
+
 def test_a_model_that_fails_to_compile_warns_once_and_evaluates_eagerly():
     fast_opaque = compiled(opaque_ball)
     x = in_bounds(opaque_ball, 200, seed=13)

@@ -21,9 +21,9 @@ import torch
 from .._array import validated_inputs
 from ..compiled import CompiledModel
 from ..diff import project_to_surface, value_and_grad
-from ..evaluate import evaluate
+from ..evaluate import call
 from ..model import Model
-from .grid import _chunk_points, _map
+from .grid import _chunk_points
 from .loops import _edge_points, _secant_step, _section_points, _section_step, _unit_normals
 
 ROOT_CHUNK = 1 << 14  # vertices per float64 evaluation while projecting (CPU; chunks run in parallel)
@@ -66,6 +66,8 @@ def _bound(f: Callable, device: Any) -> Callable:
     params = {k: torch.as_tensor(v, dtype=torch.float64, device=device) for k, v in f.check().items()}
     if any(v.ndim for v in params.values()):
         return f
+    if isinstance(f, CompiledModel):  # the fused kernel without the model call's checks on every call
+        return f.values_kernel(**params)
     fn = f.fn
 
     def bound(x: torch.Tensor) -> torch.Tensor:
@@ -77,18 +79,21 @@ def _bound(f: Callable, device: Any) -> Callable:
 
 
 def _f64(f: Callable, x: np.ndarray, device: Any) -> np.ndarray:
-    """f at points x (N, 3) in float64, forward only, in chunks (in parallel on the CPU)."""
-    out = np.empty(len(x))
+    """f at points x (N, 3) in float64, forward only, in chunks.
+
+    Each chunk goes to f as a tensor of its own (not a view), in x's layout: a compiled model's kernel
+    (:func:`_bound`) takes the component-first points of the root finders as they are.
+    """
+    if len(x) == 0:
+        return np.zeros(0)
     device = torch.device(device)
     size = _chunk_points(f, ROOT_CHUNK)
-
-    def chunk(s: int) -> None:
-        t = torch.as_tensor(x[s : s + size], dtype=torch.float64, device=device)
-        with torch.no_grad(), validated_inputs():  # points on grid edges: finite, not read again per primitive
-            out[s : s + size] = evaluate(f, t, chunk=size).cpu().numpy()
-
-    _map(chunk, list(range(0, len(x), size)), device)
-    return out
+    parts = []
+    with torch.no_grad(), validated_inputs():  # points on grid edges: finite, not read again per primitive
+        for s in range(0, len(x), size):
+            parts.append(call(f, torch.as_tensor(x[s : s + size], dtype=torch.float64, device=device)))
+    out = parts[0] if len(parts) == 1 else torch.cat(parts)
+    return np.asarray(out.numpy() if out.device.type == "cpu" else out.cpu().numpy(), dtype=np.float64)
 
 
 def _value_and_grad(f: Callable, x: np.ndarray, device: Any) -> tuple[np.ndarray, np.ndarray]:

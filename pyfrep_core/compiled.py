@@ -224,7 +224,9 @@ class CompiledModel(Model):
         take the GIL: two threads calling the Fig. 1 part's kernel on 26,000 points side by side
         ran 1.6-1.7x as fast as one this way, 1.1-1.4x through the model's call.  Any other call,
         the first of each dtype and device, and every call after a failure take the model's call
-        (same values).
+        (same values).  Its ``value_and_grad(x)`` does the same for :meth:`value_and_grad`'s fused
+        first-order kernel, whose gradient comes in the kernel's own layout (None where the model's
+        :meth:`value_and_grad` declines).
 
         Examples
         --------
@@ -236,6 +238,9 @@ class CompiledModel(Model):
         >>> bool(torch.allclose(kernel(x), fig1_part(x, r=0.4), rtol=1e-12, atol=1e-15))  # the model's call first
         True
         >>> bool(torch.allclose(kernel(x), fig1_part(x, r=0.4), rtol=1e-12, atol=1e-15))  # then the kernel's
+        True
+        >>> value, gradient = kernel.value_and_grad(x)
+        >>> bool(torch.allclose(gradient, fast.value_and_grad(x, r=0.4)[1], rtol=1e-12, atol=1e-15))
         True
         """
         values = self.check(**params)
@@ -267,6 +272,36 @@ class CompiledModel(Model):
             except Exception:  # noqa: BLE001  (the model's call decides, as for its own failures: eager, one warning)
                 return self._evaluate(x, values)
 
+        first_order: dict[tuple[torch.dtype, torch.device], dict[str, torch.Tensor] | None] = {}
+
+        def value_and_grad(x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor] | None:
+            key = (x.dtype, x.device)
+            args = first_order.get(key)
+            if (
+                args is None
+                or self.failure is not None
+                or self.first_order_failure is not None
+                or type(x) is not torch.Tensor
+                or x.ndim != 2
+                or x.shape[0] < 2
+                or x.stride() != (1, x.shape[0])
+                or x._base is not None
+                or x.requires_grad
+                or torch._C._are_functorch_transforms_active()
+                or fwad._current_level >= 0
+                or ("first order", x.dtype, x.device) not in self._variants
+            ):
+                out = self.value_and_grad(x, **values)  # checked, converted, compiled where first met
+                if key not in first_order and type(x) is torch.Tensor:
+                    first_order[key] = self._arguments(x, values)
+                return out
+            try:
+                with intra_op_threads(self._threads(x)), torch.no_grad():
+                    return self._first_order_kernel(x, **args)
+            except Exception:  # noqa: BLE001  (the model's call decides: autograd's passes then, one warning)
+                return self.value_and_grad(x, **values)
+
+        kernel.value_and_grad = value_and_grad
         kernel.chunk_points = self.chunk_points
         kernel.__name__ = self.__name__
         return kernel

@@ -429,6 +429,31 @@ def test_a_values_kernel_goes_straight_to_the_kernel_with_the_models_values(fast
     torch.testing.assert_close(kernel(x[:1].clone()), fig1_part(x[:1], r=0.35), rtol=1e-6, atol=1e-6)
 
 
+def test_a_values_kernels_first_derivatives_are_the_fused_kernels_and_keep_the_callers_layout(fast):
+    from pyfrep_core.meshing.roots import _bound
+    from pyfrep_core.meshing.roots import _value_and_grad as mesher_value_and_grad
+
+    f = fast["fig1_part"]
+    kernel = f.values_kernel(r=0.35)
+    x = component_first(in_bounds(fig1_part, 3000, seed=23))
+    want_value, want_gradient = f.value_and_grad(x, r=0.35)
+    with kernel_calls(f, ("_kernel", "_first_order_kernel")) as sizes:
+        got = [kernel.value_and_grad(x) for _ in range(3)]  # the first through the model's method
+    assert sizes == [3000] * 3
+    for value, gradient in got:
+        assert torch.equal(value, want_value) and torch.equal(gradient, want_gradient)
+    assert kernel.value_and_grad(x[:1].clone()) is None  # one point: the model's method declines
+    # the mesher's gradients through it: the values of diff's passes, in the caller's layout
+    bound = _bound(f, "cpu")  # at the default parameters
+    for points in (x.numpy(), np.ascontiguousarray(x.numpy())):
+        value, gradient = mesher_value_and_grad(bound, points, "cpu")
+        generic = value_and_grad(functools.partial(f, r=fig1_part.check()["r"]), points)
+        np.testing.assert_array_equal(value, generic[0])
+        np.testing.assert_array_equal(gradient, generic[1])
+        assert gradient.flags.c_contiguous == points.flags.c_contiguous
+        assert gradient.flags.f_contiguous == points.flags.f_contiguous
+
+
 def test_a_values_kernel_from_two_threads_and_after_a_failure_gives_the_models_values(fast):
     f = compiled(ball)
     kernel = f.values_kernel(**BALL)

@@ -86,7 +86,7 @@ from .loops import (
 )
 from .mesh_type import Mesh
 from .octree import Samples, prune, sample_blocks
-from .roots import _bracketed_roots, _normals, _value_and_grad
+from .roots import _bound, _bracketed_roots, _normals, _value_and_grad
 
 __all__ = ["dual_contour", "SINGULAR_CUTOFF", "LEAF_BLOCK"]
 
@@ -261,6 +261,9 @@ def dual_contour(
     per_chunk = max(1, _chunk_points(f, CHUNK_POINTS) // (block + 1) ** 3)  # sample_blocks' chunks
     n_chunks = sum(-(-len(part) // per_chunk) for part, _, _ in slabs)
     empty = Mesh(np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64), np.zeros((0, 3)))
+    # f at its parameters, bound once for the roots, gradients and vertices (a compiled model: its kernels,
+    # called directly); the samples and bounds take the model as it is
+    bound = _bound(f, device)
     with (
         progress(max(n_chunks, 1)) if progress is not None else contextlib.nullcontext() as bar,
         ThreadPoolExecutor(workers, thread_name_prefix="pyfrep-dc") as pool,
@@ -295,7 +298,7 @@ def dual_contour(
                     ready[k].set_result(None)
                     return None
                 ready[k].set_result(_last_layer(s, end))
-                hermite = _hermite(f, s, lo, spacing, device, tol) if len(s.f0) else None
+                hermite = _hermite(bound, s, lo, spacing, device, tol) if len(s.f0) else None
                 before = [r.result() for r in ready[:k]]  # submitted first: never wait on this one
             except BaseException as error:
                 if not ready[k].done():
@@ -307,7 +310,7 @@ def dual_contour(
                 return _NO_SURFACE
             offset = sum(count for _, count in before)
             carry = _numbered(before[-1][0], offset - before[-1][1]) if k else None
-            return _slab(s, hermite, carry, first, end, offset, lo, hi, spacing, cells, f, device)
+            return _slab(s, hermite, carry, first, end, offset, lo, hi, spacing, cells, bound, device)
 
         # the slabs' vertices and quads joined in order by this thread while the workers go on
         joined = _Joined(len(slabs))
@@ -323,7 +326,7 @@ def dual_contour(
                 "polygonize: f does not change sign inside the bounds; empty mesh", RuntimeWarning, stacklevel=2
             )
             return empty
-        return _contour(f, joined.result(), lo, hi, spacing, device, on_worker, workers)
+        return _contour(bound, joined.result(), lo, hi, spacing, device, on_worker, workers)
 
 
 def _slabs(blocks: np.ndarray, block: int, ncell_x: int, limit: int, workers: int) -> list[tuple[np.ndarray, int, int]]:

@@ -97,9 +97,27 @@ def _f64(f: Callable, x: np.ndarray, device: Any) -> np.ndarray:
 
 
 def _value_and_grad(f: Callable, x: np.ndarray, device: Any) -> tuple[np.ndarray, np.ndarray]:
-    """f and grad f at points x (N, 3) in float64 (numpy out; diff's chunked, parallel passes)."""
+    """f and grad f at points x (N, 3) in float64 (numpy out, grad f in x's layout): a bound compiled
+    model's fused first-order kernel (:func:`_bound`), in chunks of its size, component-first; diff's
+    chunked, parallel passes otherwise."""
     if len(x) == 0:
         return np.zeros(0), np.zeros((0, 3))
+    fused = None if isinstance(f, Model) else getattr(f, "value_and_grad", None)
+    if fused is not None:
+        size, parts = _chunk_points(f, ROOT_CHUNK), []
+        for s in range(0, len(x), size):
+            t = torch.as_tensor(x[s : s + size], dtype=torch.float64, device=device)
+            if t.stride() != (1, t.shape[0]):  # as the kernel takes them
+                t = torch.empty_strided(t.shape, (1, t.shape[0]), dtype=t.dtype, device=t.device).copy_(t)
+            parts.append(fused(t))
+        if all(part is not None for part in parts):
+            values, gradients = zip(*parts)
+            value = (values[0] if len(values) == 1 else torch.cat(values)).cpu().numpy()
+            gradient = (gradients[0] if len(gradients) == 1 else torch.cat(gradients)).cpu().numpy()
+            # in x's layout, as diff's passes give it (the compiled loops that read it are compiled for it)
+            if x.flags.c_contiguous:
+                return value, np.ascontiguousarray(gradient)
+            return value, np.asfortranarray(gradient) if x.flags.f_contiguous else gradient
     t = torch.as_tensor(x, dtype=torch.float64, device=device)
     hint = _chunk_points(f, 0)  # a compiled model's chunk size, else diff's default
     # a compiled model differentiates through its fused kernel (diff's passes find it): not bound

@@ -214,6 +214,21 @@ class CompiledModel(Model):
             return self.eager.fn(x, **params)  # not one value per point: let the caller's check name it
         return out.reshape(x.shape[:-1])
 
+    def _plain(self, x: torch.Tensor, variant: tuple) -> bool:
+        """Whether points x go straight to a kernel already compiled for ``variant`` (:meth:`values_kernel`):
+        a plain (N, d) tensor, N >= 2, component-first and not a view, without grad, outside any transform."""
+        return (
+            type(x) is torch.Tensor
+            and x.ndim == 2
+            and x.shape[0] >= 2
+            and x.stride() == (1, x.shape[0])
+            and x._base is None
+            and not x.requires_grad
+            and not torch._C._are_functorch_transforms_active()
+            and fwad._current_level < 0
+            and variant in self._variants
+        )
+
     def values_kernel(self, **params: Any) -> Callable[[torch.Tensor], torch.Tensor]:
         """f at these parameters, for a caller's many calls on points it makes itself (a mesher's root finding).
 
@@ -249,19 +264,7 @@ class CompiledModel(Model):
         def kernel(x: torch.Tensor) -> torch.Tensor:
             key = (x.dtype, x.device)
             args = prepared.get(key)
-            if (
-                args is None
-                or self.failure is not None
-                or type(x) is not torch.Tensor
-                or x.ndim != 2
-                or x.shape[0] < 2
-                or x.stride() != (1, x.shape[0])
-                or x._base is not None
-                or x.requires_grad
-                or torch._C._are_functorch_transforms_active()
-                or fwad._current_level >= 0
-                or (x.dtype, x.device, False, torch.is_grad_enabled()) not in self._variants
-            ):
+            if args is None or self.failure is not None or not self._plain(x, (*key, False, torch.is_grad_enabled())):
                 out = self._evaluate(x, values)  # checked, converted, compiled where first met
                 if key not in prepared and type(x) is torch.Tensor:
                     prepared[key] = self._arguments(x, values)  # None for batched parameters: always this path
@@ -277,20 +280,8 @@ class CompiledModel(Model):
         def value_and_grad(x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor] | None:
             key = (x.dtype, x.device)
             args = first_order.get(key)
-            if (
-                args is None
-                or self.failure is not None
-                or self.first_order_failure is not None
-                or type(x) is not torch.Tensor
-                or x.ndim != 2
-                or x.shape[0] < 2
-                or x.stride() != (1, x.shape[0])
-                or x._base is not None
-                or x.requires_grad
-                or torch._C._are_functorch_transforms_active()
-                or fwad._current_level >= 0
-                or ("first order", x.dtype, x.device) not in self._variants
-            ):
+            failed = self.failure is not None or self.first_order_failure is not None
+            if args is None or failed or not self._plain(x, ("first order", *key)):
                 out = self.value_and_grad(x, **values)  # checked, converted, compiled where first met
                 if key not in first_order and type(x) is torch.Tensor:
                     first_order[key] = self._arguments(x, values)

@@ -396,6 +396,22 @@ def checked_ball(x, r):
     return sphere(x, r=r)
 
 
+@contextmanager
+def model_calls(fast, name):
+    """Record the number of points of every call of ``fast``'s method ``name`` (its checked path)."""
+    sizes, method = [], getattr(fast, name)
+
+    def count(x, *args, **kwargs):
+        sizes.append(x.shape[0])
+        return method(x, *args, **kwargs)
+
+    setattr(fast, name, count)
+    try:
+        yield sizes
+    finally:
+        delattr(fast, name)  # the class's method again
+
+
 def component_first(x, dtype=torch.float64):
     """Points (N, d) as a tensor of their own laid out component-first (x[:, 0] contiguous)."""
     x = torch.as_tensor(x, dtype=dtype)
@@ -408,12 +424,12 @@ def test_a_values_kernel_goes_straight_to_the_kernel_with_the_models_values(fast
     kernel = f.values_kernel(r=0.35)
     x = component_first(in_bounds(fig1_part, 3000, seed=20), dtype)
     want = f(x, r=0.35)  # the model's call: the same compiled kernel
-    with kernel_calls(f, ("_kernel",)) as sizes, torch.no_grad():
+    with kernel_calls(f, ("_kernel",)) as sizes, model_calls(f, "_evaluate") as checked, torch.no_grad():
         first = kernel(x)  # the first of this dtype: through the model's call
         with warnings.catch_warnings():
             warnings.simplefilter("error")
             again = [kernel(x) for _ in range(3)]
-    assert sizes == [3000] * 4
+    assert sizes == [3000] * 4 and checked == [3000]  # the model's checks once, then the kernel alone
     for got in [first, *again]:
         assert got.dtype == dtype and torch.equal(got, want)
     # the rest take the model's call, with its values: a row-major layout, a view, a graph, one point
@@ -437,9 +453,9 @@ def test_a_values_kernels_first_derivatives_are_the_fused_kernels_and_keep_the_c
     kernel = f.values_kernel(r=0.35)
     x = component_first(in_bounds(fig1_part, 3000, seed=23))
     want_value, want_gradient = f.value_and_grad(x, r=0.35)
-    with kernel_calls(f, ("_kernel", "_first_order_kernel")) as sizes:
+    with kernel_calls(f, ("_kernel", "_first_order_kernel")) as sizes, model_calls(f, "value_and_grad") as checked:
         got = [kernel.value_and_grad(x) for _ in range(3)]  # the first through the model's method
-    assert sizes == [3000] * 3
+    assert sizes == [3000] * 3 and checked == [3000]
     for value, gradient in got:
         assert torch.equal(value, want_value) and torch.equal(gradient, want_gradient)
     assert kernel.value_and_grad(x[:1].clone()) is None  # one point: the model's method declines

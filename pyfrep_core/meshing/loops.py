@@ -692,8 +692,9 @@ def _section_step(
 
     Each bracket becomes the first pair of neighbours, from ``a``, among a, the m points and p whose
     classes differ: (m + 1) times narrower, whatever the shape of f.  A point where f is 0 is the
-    root; on the ``last`` step the root is regula falsi's in the narrowed bracket.  A row with a
-    non-finite value is dropped without a root (NaN).
+    root; on the ``last`` step the root is regula falsi's in the narrowed bracket (inside it, also where
+    ``fa`` is still Illinois's halved value of :func:`_secant_step`).  A row with a non-finite value is
+    dropped without a root (NaN).
     """
     moving = np.empty(rows.shape[0], dtype=np.int64)
     n = 0

@@ -26,7 +26,7 @@ from ..model import Model
 from .grid import _chunk_points
 from .loops import _edge_points, _secant_step, _section_points, _section_step, _unit_normals
 
-ROOT_CHUNK = 1 << 14  # vertices per float64 evaluation while projecting (CPU; chunks run in parallel)
+ROOT_CHUNK = 1 << 14  # points per float64 call of f (larger where f declares chunk_points: a compiled model)
 SECTION_POINTS = 32  # points per edge of a multisection step (_bracketed_roots' sections)
 SECTION_ROWS = 1 << 13  # edges per multisection call (their points: 6 MB)
 

@@ -58,7 +58,7 @@ import numpy as np
 import torch
 
 from ._array import named_entry
-from .diff import _map_chunks, _out, _points, _tangent_hessian, tangent_frame
+from .diff import _flat_points, _map_chunks, _out, _tangent_hessian, tangent_frame
 
 __all__ = [
     "Curvatures",
@@ -147,7 +147,7 @@ def _curvatures(
     f: Callable, x: Any, create_graph: bool, chunk: int | None, fields: tuple[str, ...] = Curvatures._fields
 ) -> tuple[tuple, bool, tuple]:
     """The ``fields`` of :class:`Curvatures` at x, chunk by chunk: one evaluation of f and 3 backward passes."""
-    t, was_numpy, batch = _points(x, dims=3)
+    t, was_numpy, batch = _flat_points(x, dims=3)
 
     def one(c: torch.Tensor) -> tuple[torch.Tensor, ...]:
         _, g, frame, th = _tangent_hessian(f, c, create_graph)
@@ -208,7 +208,7 @@ def mean_curvature(f: Callable, x: Any, create_graph: bool = False, chunk: int |
     >>> mean_curvature(lambda p: cylZ(p, r=0.5), torch.tensor([[0.5, 0.0, 3.0]], dtype=torch.float64))
     tensor([1.], dtype=torch.float64)
     """
-    t, was_numpy, batch = _points(x, dims=(2, 3))
+    t, was_numpy, batch = _flat_points(x, dims=(2, 3))
 
     def one(c: torch.Tensor) -> tuple[torch.Tensor]:
         _, g, _, th = _tangent_hessian(f, c, create_graph)

@@ -90,7 +90,7 @@ def _map_chunks(fn: Callable, x: torch.Tensor, chunk: int | None, parallel: bool
     """``fn(x[i:i+chunk])`` over chunks of rows of ``x``; the outputs (tuples of tensors) concatenated."""
     size = _chunk_size(x, chunk)
     n = x.shape[0]
-    # the entries check x once (_points); the primitives of f do not read it again, here or in a worker
+    # the entries check x once (_flat_points); the primitives of f do not read it again, here or in a worker
     with validated_inputs():
         if n <= size:
             return fn(x)
@@ -110,7 +110,7 @@ def _map_chunks(fn: Callable, x: torch.Tensor, chunk: int | None, parallel: bool
     return tuple(torch.cat(parts) for parts in zip(*results))
 
 
-def _points(
+def _flat_points(
     x: Any, name: str = "x", dims: int | Sequence[int] = (1, 2, 3, 4), flat: bool = True
 ) -> tuple[torch.Tensor, bool, tuple[int, ...]]:
     """Validated floating tensor of points as (N, d), whether it came in as numpy, and its batch shape.
@@ -237,7 +237,7 @@ def value_and_grad(f: Callable, x: Any, create_graph: bool = False, chunk: int |
     >>> v, g
     (array([0.75]), array([[-1., -0., -0.]]))
     """
-    t, was_numpy, batch = _points(x)
+    t, was_numpy, batch = _flat_points(x)
     if create_graph:
         y, g = _value_and_grad(f, t, True)
     else:
@@ -286,7 +286,7 @@ def value_grad_hessian(f: Callable, x: Any, create_graph: bool = False, chunk: i
             [0., -2., 0.],
             [0., 0., -2.]]))
     """
-    t, was_numpy, batch = _points(x)
+    t, was_numpy, batch = _flat_points(x)
     return _out(tuple(_vgh(f, t, create_graph, chunk)), was_numpy, batch)
 
 
@@ -315,7 +315,7 @@ def laplacian(f: Callable, x: Any, create_graph: bool = False, chunk: int | None
     >>> laplacian(lambda p: sphere(p, r=1.0), torch.zeros(2, 3))
     tensor([-6., -6.])
     """
-    t, was_numpy, batch = _points(x)
+    t, was_numpy, batch = _flat_points(x)
     h = _vgh(f, t, create_graph, chunk)[2]
     return _out(h.diagonal(dim1=-2, dim2=-1).sum(-1), was_numpy, batch)
 
@@ -338,7 +338,7 @@ def p_laplacian(f: Callable, x: Any, p: float, create_graph: bool = False, chunk
     """
     if isinstance(p, bool) or not isinstance(p, int | float) or not math.isfinite(p) or p <= 1:
         raise ValueError(f"p must be a finite number > 1, got {p!r}")
-    t, was_numpy, batch = _points(x)
+    t, was_numpy, batch = _flat_points(x)
     _, g, h = _vgh(f, t, create_graph, chunk)
     norm = torch.linalg.vector_norm(g, dim=-1)
     zero = norm == 0
@@ -434,7 +434,7 @@ def tangent_hessian(f: Callable, x: Any, create_graph: bool = False, chunk: int 
     tensor([[[-2.,  0.],
              [ 0., -2.]]])
     """
-    t, was_numpy, batch = _points(x, dims=(2, 3))
+    t, was_numpy, batch = _flat_points(x, dims=(2, 3))
     if create_graph:
         out = _tangent_hessian(f, t, True)
     else:
@@ -463,7 +463,7 @@ def div(v: Callable, x: Any, create_graph: bool = False, chunk: int | None = Non
     >>> div(lambda p: p * p, torch.tensor([[1.0, 2.0, 3.0]]))
     tensor([12.])
     """
-    t, was_numpy, batch = _points(x)
+    t, was_numpy, batch = _flat_points(x)
     if create_graph:
         (out,) = _div(v, t, True)
     else:
@@ -639,7 +639,7 @@ def param_grad(
     if not isinstance(model, Model):
         raise TypeError(f"model must be a pyfrep_core Model (declared with @model), got {type(model).__name__}")
     values = model.check(**dict(params or {}))
-    t, was_numpy, batch = _points(x, dims=model.dim)
+    t, was_numpy, batch = _flat_points(x, dims=model.dim)
     names = list(values)
     if not names:
         return {}
@@ -699,7 +699,7 @@ def project_to_surface(
     >>> p.points, bool(p.converged[0])
     (tensor([[1., 0., 0.]], dtype=torch.float64), True)
     """
-    x0, was_numpy, _ = _points(points, "points", flat=False)
+    x0, was_numpy, _ = _flat_points(points, "points", flat=False)
     x0 = x0.detach()
     eps = torch.finfo(x0.dtype).eps
     if tol is None:

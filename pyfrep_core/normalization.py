@@ -40,7 +40,7 @@ import numpy as np
 import torch
 
 from ._array import check_memory, named_entry
-from .diff import _chunk_size, _leaf, _map_chunks, _out, _points, _vjp
+from .diff import _chunk_size, _flat_points, _leaf, _map_chunks, _out, _vjp
 from .evaluate import call, name_of
 
 __all__ = ["omega_1", "omega_k", "delta_1", "normal_derivative", "normalized", "Normalized"]
@@ -94,7 +94,7 @@ def _check_omega_memory(k: int, x: Any, create_graph: bool, chunk: int | None) -
     """MemoryBudgetError when omega_k's nested derivatives cannot fit (see ``OMEGA4_BYTES``)."""
     try:
         shape = tuple(x.shape) if isinstance(x, torch.Tensor | np.ndarray) else np.shape(x)
-    except ValueError:  # ragged: _points says what is wrong
+    except ValueError:  # ragged: _flat_points says what is wrong
         return
     n = math.prod(shape[:-1]) if len(shape) > 1 else 1
     device = x.device if isinstance(x, torch.Tensor) else torch.device("cpu")
@@ -112,7 +112,7 @@ def _check_omega_memory(k: int, x: Any, create_graph: bool, chunk: int | None) -
 
 def _apply(kernel: Callable, x: Any, create_graph: bool, chunk: int | None) -> Any:
     """Run ``kernel(xr) -> (N,)`` (xr differentiable) on validated points, chunked unless a graph is kept."""
-    t, was_numpy, batch = _points(x)
+    t, was_numpy, batch = _flat_points(x)
 
     def one(c: torch.Tensor) -> tuple[torch.Tensor]:
         with torch.enable_grad():

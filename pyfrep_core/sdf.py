@@ -81,7 +81,7 @@ _AXES = {"x": 0, "y": 1, "z": 2, 0: 0, 1: 1, 2: 2}
 # ----------------------------------------------------------------------------- helpers
 
 
-def _points(x: Any) -> torch.Tensor:
+def _checked_points(x: Any) -> torch.Tensor:
     """``x`` as a floating tensor of shape (..., 3); ValueError naming the shape otherwise."""
     if not isinstance(x, torch.Tensor):
         raise TypeError(f"x must be a torch tensor or a numpy array, got {type(x).__name__}")
@@ -176,7 +176,7 @@ def sphere(x: torch.Tensor, center: Vector = (0.0, 0.0, 0.0), r: Scalar = 1.0) -
     >>> sphere(torch.tensor([[0.0, 0.0, 0.0], [3.0, 0.0, 0.0]]), r=1.0)
     tensor([ 1., -2.])
     """
-    x = _points(x)
+    x = _checked_points(x)
     check_param(center, "center", "sdf.sphere")
     check_param(r, "r", "sdf.sphere", positive=True)
     return r - _length(x - vec(center, x))
@@ -205,7 +205,7 @@ def plane(x: torch.Tensor, normal: Vector = (0.0, 0.0, 1.0), point: Vector = (0.
     >>> plane(torch.tensor([[0.0, 0.0, 2.0], [5.0, 1.0, -1.0]]), normal=(0.0, 0.0, 2.0), point=(0.0, 0.0, 1.0))
     tensor([ 1., -2.])
     """
-    x = _points(x)
+    x = _checked_points(x)
     check_param(normal, "normal", "sdf.plane", nonzero=True)
     check_param(point, "point", "sdf.plane")
     n = vec(normal, x, name="normal")
@@ -232,7 +232,7 @@ def box(x: torch.Tensor, b: Vector | Scalar = (1.0, 1.0, 1.0), center: Vector = 
     >>> box(torch.tensor([[0.0, 0.0, 0.0], [2.0, 2.0, 1.0], [3.0, 3.0, 3.0]]), b=(1.0, 1.0, 1.0))
     tensor([ 1.0000, -1.4142, -3.4641])
     """
-    x = _points(x)
+    x = _checked_points(x)
     check_param(b, "b", "sdf.box", positive=True)
     check_param(center, "center", "sdf.box")
     return _box_distance_of(x, b, center)
@@ -270,7 +270,7 @@ def block(
     >>> block(torch.tensor([[0.5, 0.5, 0.5], [0.5, 0.5, 3.0]]), vertex=(0, 0, 0), dx=1, dy=1, dz=2)
     tensor([ 0.5000, -1.0000])
     """
-    x = _points(x)
+    x = _checked_points(x)
     check_param(vertex, "vertex", "sdf.block")
     for name, value in (("dx", dx), ("dy", dy), ("dz", dz)):
         check_param(value, name, "sdf.block", positive=True)
@@ -313,7 +313,7 @@ def roundedBox(
     if hb is not None and hr is not None and not (hb + hr > 0).all():
         raise ValueError(f"sdf.roundedBox: b + radius must be positive, got b={shown(b)!r}, radius={shown(radius)!r}")
     check_param(center, "center", "sdf.roundedBox")
-    return _box_distance_of(_points(x), b, center) + radius
+    return _box_distance_of(_checked_points(x), b, center) + radius
 
 
 @frep
@@ -347,7 +347,7 @@ def torus(
 
 
 def _torus(x: torch.Tensor, R: Scalar, r: Scalar, center: Vector, axis: int, fn: str) -> torch.Tensor:
-    x = _points(x)
+    x = _checked_points(x)
     check_param(R, "R", fn, nonnegative=True)  # R = 0 is the ball of radius r; R < 0 is no torus
     check_param(r, "r", fn, positive=True)
     check_param(center, "center", fn)
@@ -421,7 +421,7 @@ def capsule(
     >>> capsule(torch.tensor([[0.0, 0.0, 2.0]]), a=(0, 0, 1), b=(0, 0, 1), radius=0.5)  # a sphere
     tensor([-0.5000])
     """
-    x = _points(x)
+    x = _checked_points(x)
     va, vb = vec(a, x, name="a"), vec(b, x, name="b")
     pa, ba = x - va, vb - va
     # the closest point's parameter on the segment; a == b (a point, 0/0): t = 0, the closest point is a
@@ -454,7 +454,7 @@ def cylinder(
     >>> cylinder(torch.tensor([[3.0, 1.0, 0.0], [0.0, 0.0, 7.0]]), u=(1.0, 0.0, 0.0), r=0.5)
     tensor([-0.5000, -6.5000])
     """
-    x = _points(x)
+    x = _checked_points(x)
     check_param(center, "center", "sdf.cylinder")
     check_param(u, "u", "sdf.cylinder", nonzero=True)
     check_param(r, "r", "sdf.cylinder", positive=True)
@@ -465,7 +465,7 @@ def cylinder(
 
 
 def _cyl_axis(x: torch.Tensor, center: Vector, r: Scalar, axis: int) -> torch.Tensor:
-    x = _points(x)
+    x = _checked_points(x)
     fn = "sdf.cylinder" + "XYZ"[axis]
     check_param(center, "center", fn)
     check_param(r, "r", fn, positive=True)
@@ -524,7 +524,7 @@ cylZ = cylinderZ  # noqa: N816 (the kernel's name for it)
 
 
 def _cone_axis(x: torch.Tensor, center: Vector, r: Scalar, axis: int) -> torch.Tensor:
-    x = _points(x)
+    x = _checked_points(x)
     fn = "sdf.cone" + "XYZ"[axis]
     check_param(center, "center", fn)
     check_param(r, "r", fn, positive=True)
@@ -609,7 +609,7 @@ def cappedCylinder(
     >>> cappedCylinder(torch.tensor([[0.0, 0.0, 0.0], [2.0, 0.0, 3.0]]), a=(0, 0, -1), b=(0, 0, 1), radius=1.0)
     tensor([ 1.0000, -2.2361])
     """
-    x = _points(x)
+    x = _checked_points(x)
     _distinct_points(a, b, "sdf.cappedCylinder")
     check_param(radius, "radius", "sdf.cappedCylinder", positive=True)
     rho, h, length = _segment_frame(x, a, b)
@@ -654,7 +654,7 @@ def cappedCone(
     ha, hb = param_array(ra, "ra", "sdf.cappedCone"), param_array(rb, "rb", "sdf.cappedCone")
     if ha is not None and hb is not None and not (ha + hb > 0).all():
         raise ValueError(f"sdf.cappedCone: ra and rb must not both be 0, got {shown(ra)!r} and {shown(rb)!r}")
-    x = _points(x)
+    x = _checked_points(x)
     _distinct_points(a, b, "sdf.cappedCone")
     rho, h, length = _segment_frame(x, a, b)
     dr = rb - ra
@@ -699,7 +699,7 @@ def frame(
     >>> frame(torch.tensor([[1.0, 1.0, 0.0], [0.0, 0.0, 0.0]]), side_length=2.0, thickness=0.2)
     tensor([ 0.1000, -1.2728])
     """
-    x = _points(x)
+    x = _checked_points(x)
     check_param(side_length, "side_length", "sdf.frame", positive=True)
     check_param(thickness, "thickness", "sdf.frame", positive=True)
     check_param(center, "center", "sdf.frame")
@@ -763,7 +763,7 @@ def superQuadric(
     >>> superQuadric(p, e=(1.0, 1.0), a=(2.0, 1.0, 0.5))  # an ellipsoid: exact along its axes
     tensor([ 0.5000, -1.0000,  0.2500], dtype=torch.float64)
     """
-    x = _points(x)
+    x = _checked_points(x)
     check_param(e, "e", "sdf.superQuadric", positive=True)
     check_param(a, "a", "sdf.superQuadric", positive=True)
     check_param(r, "r", "sdf.superQuadric")

@@ -58,7 +58,7 @@ def param_derivative(
     >>> param_derivative(ball, np.array([[0.3, 0.0, 0.0]]), "r", {"r": 1.5})
     array([3.])
     """
-    t, was_numpy = _points(model, x)
+    t, was_numpy = _model_points(model, x)
     values = _params(model, name, params)
     if chunk is not None:
         chunk = check_option(chunk, "chunk", "param_derivative", "int", positive=True)
@@ -100,7 +100,7 @@ def normal_velocity(
     >>> normal_velocity(ball, np.array([[0.0, 1.0, 0.0], [0.0, 0.0, -1.0]]), "r")
     array([-1., -1.])
     """
-    t, was_numpy = _points(model, x)
+    t, was_numpy = _model_points(model, x)
     values = _params(model, name, params)
     if chunk is not None:
         chunk = check_option(chunk, "chunk", "normal_velocity", "int", positive=True)
@@ -122,7 +122,7 @@ def velocity(df_dp: torch.Tensor, grad_norm: torch.Tensor) -> torch.Tensor:
     return np.where(grad_norm > 0, -df_dp / np.where(grad_norm > 0, grad_norm, 1.0), 0.0)
 
 
-def _points(model: Model, x: Any) -> tuple[torch.Tensor, bool]:
+def _model_points(model: Model, x: Any) -> tuple[torch.Tensor, bool]:
     if not isinstance(model, Model):
         raise TypeError(f"model must be a pyfrep_core Model (declared with @model), got {type(model).__name__}")
     t, was_numpy = as_tensor(x, "x")

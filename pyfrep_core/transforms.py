@@ -61,7 +61,7 @@ def _stack(a: torch.Tensor, b: torch.Tensor, c: torch.Tensor) -> torch.Tensor:
     return torch.stack(torch.broadcast_tensors(a, b, c), dim=-1)
 
 
-def _points(x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+def _components(x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     check_points(x, empty=True)  # no points give no values
     return x[..., 0], x[..., 1], x[..., 2]
 
@@ -133,7 +133,7 @@ def shift3D(x: torch.Tensor, dx: Number = 0.0, dy: Number = 0.0, dz: Number = 0.
     >>> shift3D(torch.tensor([[1.0, 2.0, 3.0]]), dx=1.0, dz=-1.0)
     tensor([[0., 2., 4.]])
     """
-    px, py, pz = _points(x)
+    px, py, pz = _components(x)
     for name, value in (("dx", dx), ("dy", dy), ("dz", dz)):
         check_param(value, name, "shift3D")
     return _stack(px - dx, py - dy, pz - dz)
@@ -202,7 +202,7 @@ def scale3D(x: torch.Tensor, sx: Number = 1.0, sy: Number = 1.0, sz: Number = 1.
     >>> scale3D(torch.tensor([[2.0, 2.0, 2.0]]), sx=2.0, sy=4.0, sz=0.5)
     tensor([[1.0000, 0.5000, 4.0000]])
     """
-    px, py, pz = _points(x)
+    px, py, pz = _components(x)
     for name, value in (("sx", sx), ("sy", sy), ("sz", sz)):
         check_param(value, name, "scale3D", nonzero=True)
     return _stack(px / sx, py / sy, pz / sz)
@@ -230,7 +230,7 @@ def stretch3D(
     >>> stretch3D(torch.tensor([[3.0, 1.0, 1.0]]), x0=(1.0, 1.0, 1.0), sx=2.0)
     tensor([[2., 1., 1.]])
     """
-    px, py, pz = _points(x)
+    px, py, pz = _components(x)
     check_param(x0, "x0", "stretch3D")
     for name, value in (("sx", sx), ("sy", sy), ("sz", sz)):
         check_param(value, name, "stretch3D", nonzero=True)
@@ -262,7 +262,7 @@ def rotate3DX(x: torch.Tensor, theta: Number) -> torch.Tensor:
     >>> rotate3DX(torch.tensor([[1.0, 0.0, 1.0]], dtype=torch.float64), math.pi / 2).round(decimals=12)
     tensor([[1., 1., 0.]], dtype=torch.float64)
     """
-    px, py, pz = _points(x)
+    px, py, pz = _components(x)
     check_param(theta, "theta", "rotate3DX")
     y2, z2 = _rotate_pair(py, pz, _num(theta, x))
     return _stack(px, y2, z2)
@@ -289,7 +289,7 @@ def rotate3DY(x: torch.Tensor, theta: Number) -> torch.Tensor:
     >>> rotate3DY(torch.tensor([[1.0, 0.0, 0.0]], dtype=torch.float64), math.pi / 2).round(decimals=12)
     tensor([[0., 0., 1.]], dtype=torch.float64)
     """
-    px, py, pz = _points(x)
+    px, py, pz = _components(x)
     check_param(theta, "theta", "rotate3DY")
     z2, x2 = _rotate_pair(pz, px, _num(theta, x))
     return _stack(x2, py, z2)
@@ -317,7 +317,7 @@ def rotate3DZ(x: torch.Tensor, theta: Number) -> torch.Tensor:
     >>> rotate3DZ(torch.tensor([[0.0, 1.0, 0.0]], dtype=torch.float64), math.pi / 2).round(decimals=12)
     tensor([[1., 0., 0.]], dtype=torch.float64)
     """
-    px, py, pz = _points(x)
+    px, py, pz = _components(x)
     check_param(theta, "theta", "rotate3DZ")
     x2, y2 = _rotate_pair(px, py, _num(theta, x))
     return _stack(x2, y2, pz)
@@ -352,7 +352,7 @@ def rotate(x: torch.Tensor, angle: Number, axis: Vector = (0.0, 0.0, 1.0)) -> to
     >>> rotate(p, 2 * math.pi / 3, axis=(1.0, 1.0, 1.0)).round(decimals=12)  # permutes the axes
     tensor([[0., 1., 0.]], dtype=torch.float64)
     """
-    px, py, pz = _points(x)
+    px, py, pz = _components(x)
     check_param(angle, "angle", "rotate")
     check_param(axis, "axis", "rotate", nonzero=True)
     n = _unit(vec(axis, x, name="axis"))
@@ -389,7 +389,7 @@ def orient(x: torch.Tensor, direction: Vector) -> torch.Tensor:
     >>> orient(torch.tensor([[2.0, 0.0, 0.0]], dtype=torch.float64), (1.0, 0.0, 0.0))
     tensor([[0., 0., 2.]], dtype=torch.float64)
     """
-    px, py, pz = _points(x)
+    px, py, pz = _components(x)
     check_param(direction, "direction", "orient", nonzero=True)
     d = _unit(vec(direction, x, name="direction"))
     # R maps e_z to d; R^T x = c x - v x x + v (v . x) / (1 + c), v = e_z x d, c = e_z . d
@@ -435,7 +435,7 @@ def twistX(x: torch.Tensor, x1: Number, x2: Number, theta1: Number, theta2: Numb
     >>> twistX(p, 0.0, 1.0, 0.0, math.pi / 2).round(decimals=12)  # at x = 1 the solid turned by pi/2
     tensor([[1., 1., 0.]], dtype=torch.float64)
     """
-    px, py, pz = _points(x)
+    px, py, pz = _components(x)
     _distinct("twistX", ("x1", "x2"), x1, x2)
     check_param(theta1, "theta1", "twistX")
     check_param(theta2, "theta2", "twistX")
@@ -467,7 +467,7 @@ def twistY(x: torch.Tensor, y1: Number, y2: Number, theta1: Number, theta2: Numb
     >>> twistY(p, 0.0, 1.0, 0.0, math.pi / 4).round(decimals=12)  # theta(2) = pi/2
     tensor([[-1.,  2.,  0.]], dtype=torch.float64)
     """
-    px, py, pz = _points(x)
+    px, py, pz = _components(x)
     _distinct("twistY", ("y1", "y2"), y1, y2)
     check_param(theta1, "theta1", "twistY")
     check_param(theta2, "theta2", "twistY")
@@ -500,7 +500,7 @@ def twistZ(x: torch.Tensor, z1: Number, z2: Number, theta1: Number, theta2: Numb
     >>> twistZ(p, 0.0, 1.0, 0.0, math.pi / 2).round(decimals=12)
     tensor([[1., 0., 1.]], dtype=torch.float64)
     """
-    px, py, pz = _points(x)
+    px, py, pz = _components(x)
     _distinct("twistZ", ("z1", "z2"), z1, z2)
     check_param(theta1, "theta1", "twistZ")
     check_param(theta2, "theta2", "twistZ")
@@ -534,7 +534,7 @@ def twist(x: torch.Tensor, k: Number) -> torch.Tensor:
     tensor([[0., 1., 1.],
             [1., 0., 0.]], dtype=torch.float64)
     """
-    px, py, pz = _points(x)
+    px, py, pz = _components(x)
     check_param(k, "k", "twist")
     x2, y2 = _rotate_pair(px, py, -_num(k, x) * pz)
     return _stack(x2, y2, pz)
@@ -570,7 +570,7 @@ def taperX(x: torch.Tensor, x1: Number, x2: Number, s1: Number, s2: Number) -> t
     tensor([[0.5000, 1.3333, 1.3333],
             [2.0000, 2.0000, 2.0000]])
     """
-    px, py, pz = _points(x)
+    px, py, pz = _components(x)
     _distinct("taperX", ("x1", "x2"), x1, x2)
     _same_sign("taperX", s1, s2)
     s = _taper_scale(px, x1, x2, s1, s2)
@@ -599,7 +599,7 @@ def taperY(x: torch.Tensor, y1: Number, y2: Number, s1: Number, s2: Number) -> t
     >>> taperY(torch.tensor([[1.0, 1.0, 1.0]]), 0.0, 1.0, 1.0, 0.5)
     tensor([[2., 1., 2.]])
     """
-    px, py, pz = _points(x)
+    px, py, pz = _components(x)
     _distinct("taperY", ("y1", "y2"), y1, y2)
     _same_sign("taperY", s1, s2)
     s = _taper_scale(py, y1, y2, s1, s2)
@@ -628,7 +628,7 @@ def taperZ(x: torch.Tensor, z1: Number, z2: Number, s1: Number, s2: Number) -> t
     >>> taperZ(torch.tensor([[1.0, 1.0, -1.0]]), 0.0, 1.0, 2.0, 1.0)
     tensor([[ 0.5000,  0.5000, -1.0000]])
     """
-    px, py, pz = _points(x)
+    px, py, pz = _components(x)
     _distinct("taperZ", ("z1", "z2"), z1, z2)
     _same_sign("taperZ", s1, s2)
     s = _taper_scale(pz, z1, z2, s1, s2)
@@ -672,7 +672,7 @@ def bend(x: torch.Tensor, k: Number) -> torch.Tensor:
     >>> bend(p, 1.0).round(decimals=12)  # arc length pi/2 along the bent axis
     tensor([[1.5708, 0.0000, 0.5000]], dtype=torch.float64)
     """
-    px, py, pz = _points(x)
+    px, py, pz = _components(x)
     check_param(k, "k", "bend")
     k = _num(k, x)
     b = 1.0 - k * py

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import functools
 import importlib
-import importlib.util
 import io
 import time
 
@@ -396,10 +395,7 @@ def test_slice_panel_shows_f_and_the_true_distance_with_errors():
     np.testing.assert_allclose(p.values["f"], 0.8**2 - rho**2, atol=1e-12)
     mean_err = np.abs((0.8**2 - rho**2) - exact).mean()
     assert p.errors["f"][0] == pytest.approx(mean_err, rel=1e-2)
-    if importlib.util.find_spec("pyfrep_core.normalization") is None:
-        assert "omega_1: not available yet" in p.status.value
-    else:  # normalized functions are closer to the distance than f itself
-        assert p.errors["omega_1"][0] < p.errors["f"][0]
+    assert p.errors["omega_1"][0] < p.errors["f"][0]  # normalized functions are closer to the distance than f
     # moving the plane to z = 0.6 shrinks the circle to radius sqrt(0.8^2 - 0.6^2)
     p.offset.value = 0.6
     inside = p.values["f"] > 0
@@ -407,7 +403,6 @@ def test_slice_panel_shows_f_and_the_true_distance_with_errors():
 
 
 def test_redistance_panel_trains_charts_and_hands_the_network_to_the_slices():
-    pytest.importorskip("pyfrep_core.redistancing")
     from workbench.redistance_panel import redistance_panel
     from workbench.slice_panel import slice_panel
 
@@ -444,7 +439,6 @@ def test_redistance_panel_trains_charts_and_hands_the_network_to_the_slices():
 
 
 def test_curvature_panel_on_a_sphere():
-    pytest.importorskip("pyfrep_core.curvature")
     from workbench.curvature_panel import curvature_panel
 
     p = curvature_panel(models={"ball": ball_model}, resolution=32, backend="image", threaded=False)
@@ -456,7 +450,7 @@ def test_curvature_panel_on_a_sphere():
         assert bytes(p.histogram.value).startswith(b"\x89PNG") and "median" in p.status.value
         before = p.view.widget.value
         p.quantity.value = "Gaussian K"
-        assert p.view.widget.value != before or np.ptp(t["K"]) < 1e-9
+        assert p.view.widget.value != before  # recoloured and retitled (K is constant on a sphere, so its title)
         assert "median" in p.status.value and "K in [" in p.status.value
     finally:
         p.view.close()

@@ -450,7 +450,9 @@ print(_steady_heap(), resource.getrusage(resource.RUSAGE_SELF).ru_minflt - befor
 
 
 @pytest.mark.skipif(not hasattr(os, "confstr") or "glibc" not in str(os.confstr("CS_GNU_LIBC_VERSION")), reason="glibc")
-@pytest.mark.parametrize("environment", [{}, {"MALLOC_TRIM_THRESHOLD_": "131072"}])
+@pytest.mark.parametrize(
+    "environment", [{}, {"MALLOC_TRIM_THRESHOLD_": "131072"}, {"GLIBC_TUNABLES": "glibc.malloc.trim_threshold=131072"}]
+)
 def test_after_polygonize_freed_arrays_are_reused_not_faulted_in_again(environment):
     import subprocess
     import sys

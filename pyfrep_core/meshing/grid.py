@@ -139,24 +139,38 @@ def _return_freed_memory() -> None:
 # the ceiling glibc's own rule reaches, the heap keeps no more than it would keep anyway.
 HEAP_MMAP_THRESHOLD = 32 << 20
 HEAP_TRIM_THRESHOLD = 64 << 20
-_MALLOC_SETTINGS = ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_", "MALLOC_TOP_PAD_", "GLIBC_TUNABLES")
+_MALLOC_VARIABLES = ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_", "MALLOC_TOP_PAD_")
 
 
 @functools.lru_cache(maxsize=1)
 def _steady_heap() -> bool:
     """Pin glibc's mmap and trim thresholds (once per process; nothing elsewhere, or where the
-    environment sets malloc's thresholds itself); whether they are pinned now.
+    environment sets malloc's settings itself); whether they are pinned now.
 
-    >>> _steady_heap() == (_glibc() is not None and not any(k in os.environ for k in _MALLOC_SETTINGS))
+    >>> _steady_heap() == (_glibc() is not None and not _malloc_set_by_environment())
     True
     """
     libc = _glibc()
-    if libc is None or any(k in os.environ for k in _MALLOC_SETTINGS):
+    if libc is None or _malloc_set_by_environment():
         return False
     m_trim_threshold, m_mmap_threshold = -1, -3  # glibc's <malloc.h>
     return bool(libc.mallopt(m_mmap_threshold, HEAP_MMAP_THRESHOLD)) and bool(
         libc.mallopt(m_trim_threshold, HEAP_TRIM_THRESHOLD)
     )
+
+
+def _malloc_set_by_environment() -> bool:
+    """Whether the environment sets glibc malloc's thresholds (its variables, or a malloc tunable).
+
+    >>> import unittest.mock
+    >>> with unittest.mock.patch.dict(os.environ, {"GLIBC_TUNABLES": "glibc.cpu.x86_shstk=on"}, clear=True):
+    ...     cpu_only = _malloc_set_by_environment()
+    >>> with unittest.mock.patch.dict(os.environ, {"GLIBC_TUNABLES": "glibc.malloc.trim_threshold=1"}, clear=True):
+    ...     malloc = _malloc_set_by_environment()
+    >>> cpu_only, malloc
+    (False, True)
+    """
+    return any(k in os.environ for k in _MALLOC_VARIABLES) or "glibc.malloc." in os.environ.get("GLIBC_TUNABLES", "")
 
 
 @functools.lru_cache(maxsize=1)

@@ -13,6 +13,7 @@ import torch
 from pyfrep_core import Mesh, Param, grad, model, polygonize, sphere
 from pyfrep_core.diff import value_and_grad
 from pyfrep_core.meshing import GridTooLargeError, evaluate_grid, grid_axes, grid_memory
+from pyfrep_core.meshing.grid import _MALLOC_VARIABLES, _glibc
 from pyfrep_core.models import fig1_part
 
 BOX = ((-1.1,) * 3, (1.1,) * 3)
@@ -432,7 +433,7 @@ def test_polygonize_tol_trades_projection_accuracy_for_speed():
 # (trim), so the 9 MB of ten 900 kB arrays freed together went back to the system and were faulted in
 # again on every pass (about 9,700 of 11,000 pages on the 2-core machine)
 _HEAP_SCRIPT = """
-import resource, sys
+import resource
 import numpy as np
 from pyfrep_core import polygonize, sphere
 from pyfrep_core.meshing.grid import _steady_heap
@@ -449,7 +450,7 @@ print(_steady_heap(), resource.getrusage(resource.RUSAGE_SELF).ru_minflt - befor
 """
 
 
-@pytest.mark.skipif(not hasattr(os, "confstr") or "glibc" not in str(os.confstr("CS_GNU_LIBC_VERSION")), reason="glibc")
+@pytest.mark.skipif(_glibc() is None, reason="glibc's malloc settings")
 @pytest.mark.parametrize(
     "environment", [{}, {"MALLOC_TRIM_THRESHOLD_": "131072"}, {"GLIBC_TUNABLES": "glibc.malloc.trim_threshold=131072"}]
 )
@@ -457,12 +458,12 @@ def test_after_polygonize_freed_arrays_are_reused_not_faulted_in_again(environme
     import subprocess
     import sys
 
-    env = {k: v for k, v in os.environ.items() if k not in ("MALLOC_TRIM_THRESHOLD_", "GLIBC_TUNABLES")}
+    env = {k: v for k, v in os.environ.items() if k not in (*_MALLOC_VARIABLES, "GLIBC_TUNABLES")}
     out = subprocess.run(
         [sys.executable, "-c", _HEAP_SCRIPT], env={**env, **environment}, capture_output=True, text=True, check=True
     )
     pinned, faults = out.stdout.split()
-    pages = 5 * 10 * 900_000 // 4096
+    pages = 5 * 10 * 900_000 // os.sysconf("SC_PAGE_SIZE")
     if environment:  # the user's own malloc settings are left as they are (and this one trims at 128 kB)
         assert pinned == "False" and int(faults) > pages // 2
     else:

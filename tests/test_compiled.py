@@ -32,6 +32,7 @@ from pyfrep_core import (
     torusZ,
     value_and_grad,
 )
+from pyfrep_core._graph_calls import probe
 from pyfrep_core._threads import intra_op_threads
 from pyfrep_core.compiled import CompiledModel, compiled, first_order, warm_up
 from pyfrep_core.models import ellipse, fig1_part, microstructure, pawn, schwarz_d
@@ -426,11 +427,15 @@ def test_a_values_kernel_goes_straight_to_the_kernel_with_the_models_values(fast
     want = f(x, r=0.35)  # the model's call: the same compiled kernel
     with kernel_calls(f, ("_kernel",)) as sizes, model_calls(f, "_evaluate") as checked, torch.no_grad():
         first = kernel(x)  # the first of this dtype: through the model's call
-        with warnings.catch_warnings():
+        second = kernel(x)  # the second through dynamo, whose guards choose the graph
+        with warnings.catch_warnings(), probe() as through_dynamo:
             warnings.simplefilter("error")
             again = [kernel(x) for _ in range(3)]
-    assert sizes == [3000] * 4 and checked == [3000]  # the model's checks once, then the kernel alone
-    for got in [first, *again]:
+    # the model's checks once, dynamo once (and on a copy of 16 rows, the first time this graph is
+    # called directly: the same result), then the graph alone
+    assert checked == [3000] and sizes[:2] == [3000, 3000] and sizes[2:] in ([], [16])
+    assert through_dynamo == []
+    for got in [first, second, *again]:
         assert got.dtype == dtype and torch.equal(got, want)
     # the rest take the model's call, with its values: a row-major layout, a view, a graph, one point
     rows = x.contiguous()
@@ -454,8 +459,10 @@ def test_a_values_kernels_first_derivatives_are_the_fused_kernels_and_keep_the_c
     x = component_first(in_bounds(fig1_part, 3000, seed=23))
     want_value, want_gradient = f.value_and_grad(x, r=0.35)
     with kernel_calls(f, ("_kernel", "_first_order_kernel")) as sizes, model_calls(f, "value_and_grad") as checked:
-        got = [kernel.value_and_grad(x) for _ in range(3)]  # the first through the model's method
-    assert sizes == [3000] * 3 and checked == [3000]
+        got = [kernel.value_and_grad(x) for _ in range(2)]  # the first through the model's method, then dynamo
+        with probe() as through_dynamo:
+            got += [kernel.value_and_grad(x) for _ in range(2)]  # the graph dynamo chose, called directly
+    assert checked == [3000] and sizes[:2] == [3000, 3000] and sizes[2:] in ([], [16]) and through_dynamo == []
     for value, gradient in got:
         assert torch.equal(value, want_value) and torch.equal(gradient, want_gradient)
     assert kernel.value_and_grad(x[:1].clone()) is None  # one point: the model's method declines
@@ -468,6 +475,109 @@ def test_a_values_kernels_first_derivatives_are_the_fused_kernels_and_keep_the_c
         np.testing.assert_array_equal(gradient, generic[1])
         assert gradient.flags.c_contiguous == points.flags.c_contiguous
         assert gradient.flags.f_contiguous == points.flags.f_contiguous
+
+
+@model(bounds=((-2.0,) * 3, (2.0,) * 3), r=Param(1.0, 0.5, 1.5))
+def rows_ball(x, r):
+    """A ball whose formula depends on how many points come at once (the kernel must not reuse a graph
+    across that condition): r^2 - |x|^2 for fewer than 50 points, 2 (r^2 - |x|^2) for more."""
+    scale = 1.0 if x.shape[0] < 50 else 2.0
+    return scale * sphere(x, r=r)
+
+
+SHIFT = [0.0]  # a global a model reads
+
+
+@model(bounds=((-2.0,) * 3, (2.0,) * 3), r=Param(1.0, 0.5, 1.5))
+def shifted_ball(x, r):
+    """r^2 - |x|^2 + SHIFT[0]: a model reading a global (dynamo guards its value)."""
+    return sphere(x, r=r) + SHIFT[0]
+
+
+def ball_values(x):
+    """ball at BALL, in closed form (numpy)."""
+    return BALL["r"] ** 2 - ((x - BALL_CENTER) ** 2).sum(1)
+
+
+def _direct_and_right(kernel, m, params, want, sizes, dtype=torch.float64, seed=40):
+    """For each number of points: kernel's values against want(x) (numpy, float64: to 1e-15 in float64,
+    within the float32 rounding bound of model ``m`` in float32), and whether the call reached the
+    graph directly (no graph run through dynamo)."""
+    direct = []
+    for k, n in enumerate(sizes):
+        x = component_first(in_bounds(m, n, seed=seed + k), dtype)
+        with probe() as through_dynamo:
+            got = kernel(x)
+        assert got.dtype == dtype and got.shape == (n,)
+        exact = want(x.double().numpy())
+        if dtype == torch.float64:
+            np.testing.assert_allclose(got.numpy(), exact, rtol=1e-15, atol=1e-15)
+        else:
+            bound = float32_error_bound(m, x.double(), **params).numpy()
+            assert (np.abs(got.double().numpy() - exact) <= bound).all()
+        direct.append(through_dynamo == [])
+    return direct
+
+
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
+def test_a_values_kernel_calls_the_graph_dynamo_chose_directly_for_any_number_of_points(dtype):
+    f = compiled(ball)
+    kernel = f.values_kernel(**BALL)
+    sizes = [3000, 3000, 2, 3, 16, 17, 1000, 70_000]
+
+    direct = _direct_and_right(kernel, ball, BALL, ball_values, sizes, dtype)
+    assert direct == [False, False] + [True] * 6  # the model's call, dynamo's, then the graph alone
+    # first derivatives: the same, through the fused first-order kernel's graph
+    x = component_first(in_bounds(ball, 500, seed=41), dtype)
+    calls = []
+    for _ in range(3):
+        with probe() as through_dynamo:
+            value, gradient = kernel.value_and_grad(x)
+        calls.append(through_dynamo == [])
+        exact = ball_values(x.double().numpy())
+        tolerance = float32_error_bound(ball, x.double(), **BALL).numpy() if dtype == torch.float32 else 1e-15
+        assert (np.abs(value.double().numpy() - exact) <= tolerance).all()
+        want_gradient = -2 * (x.double().numpy() - BALL_CENTER)  # one rounding of x - c, doubled
+        np.testing.assert_allclose(
+            gradient.numpy(), want_gradient, rtol=0, atol=1e-6 if dtype == torch.float32 else 1e-15
+        )
+    assert calls == [False, False, True]
+
+
+def test_a_values_kernel_keeps_going_through_dynamo_where_a_graph_alone_would_be_wrong():
+    # a formula that depends on the number of points: the graph has a guard on it
+    f = compiled(rows_ball)
+    kernel = f.values_kernel(r=1.2)
+
+    def scaled(x):
+        return (1.0 if len(x) < 50 else 2.0) * (1.2**2 - (x * x).sum(1))
+
+    direct = _direct_and_right(kernel, rows_ball, {"r": 1.2}, scaled, [3000, 3000, 20, 3000, 10, 100])
+    assert not any(direct)
+    # a graph break (a check in Python on the points' values): two graphs, Python between them
+    f = compiled(checked_ball)
+    kernel = f.values_kernel(r=1.2)
+    direct = _direct_and_right(kernel, checked_ball, {"r": 1.2}, lambda x: 1.2**2 - (x * x).sum(1), [500, 500, 700, 30])
+    assert not any(direct)
+    # compiled for one number of points (dynamic=False): no graph for any other
+    f = compiled(ball, dynamic=False)
+    kernel = f.values_kernel(**BALL)
+    direct = _direct_and_right(kernel, ball, BALL, ball_values, [300, 300, 300, 40])
+    assert not any(direct[:2]) and not direct[3]
+
+
+def test_a_values_kernel_made_after_a_global_changes_sees_the_new_value():
+    f = compiled(shifted_ball)
+    x = component_first(in_bounds(shifted_ball, 400, seed=42))
+    want = 1.1**2 - (x.numpy() ** 2).sum(1)
+    try:
+        for shift in (0.0, 0.5, -0.25):  # a mesh, the global changed, another mesh, ...
+            SHIFT[0] = shift
+            kernel = f.values_kernel(r=1.1)
+            for _ in range(4):
+                np.testing.assert_allclose(kernel(x).numpy(), want + shift, rtol=1e-15, atol=1e-15)
+    finally:
+        SHIFT[0] = 0.0
 
 
 def test_a_values_kernel_from_two_threads_and_after_a_failure_gives_the_models_values(fast):
@@ -499,6 +609,7 @@ def test_a_values_kernel_from_two_threads_and_after_a_failure_gives_the_models_v
         raise RuntimeError("no C++ compiler found")
 
     f._kernel = broken  # a failure: the kernel is not called again, the eager model answers
+    kernel = f.values_kernel(**BALL)  # (the kernel above calls the graph it found directly: unbroken)
     with pytest.warns(RuntimeWarning, match="no C\\+\\+ compiler found"):
         np.testing.assert_allclose(kernel(xs[0]).numpy(), want[0], rtol=0, atol=1e-14)
     assert f.failure is not None

@@ -1,21 +1,23 @@
 """A compiled kernel's graph called straight from its inputs, after one call through dynamo has chosen it.
 
 A call of a ``torch.compile`` function goes through dynamo: its frame hook, its guards (Python
-code for a model's parameters) and AOTAutograd's wrappers, about 25 us of Python on one core
-and some 25 releases of the GIL (each freed tensor, each small torch call) before and after
-the fused loop.  A mesher's root finding calls the same kernel with the same parameters many
-times on fresh points; from two threads, each of those releases hands the GIL to the other
-thread, which it must then wait to get back (about 180 us a call in the dual-contouring
-mesher's workers at 128^3, against 6 us for the graph's own call).
+code reading a model's parameters) and AOTAutograd's wrappers, about 25 us of Python on one
+core before and after the fused loop, and 8 (values) to 21 (value and gradient) releases of
+the GIL in a mesher's call on a few points (a breakpoint on ``PyEval_SaveThread``: each freed
+tensor, each small torch call, the guard reading a parameter).  From two threads, each release
+can hand the GIL to the other thread, which it must then wait to get back: on 26,000 points two
+threads calling side by side through dynamo ran no faster than one, and directly nearly twice
+as fast (``benchmarks/kernel_calls.py``; figures in :meth:`.CompiledModel.values_kernel`).
 
-:class:`Capturing` is Inductor's ``torch.compile`` backend, unchanged, that also records the
-graph it compiled (:class:`Graph`: where dynamo takes each input from, its shape guards).  A
-kernel's caller probes one call through dynamo (:func:`probe`): the graph that dynamo's guards
-chose for these parameters and globals is the one it ran.  :func:`direct_call` then gives a
-call of that graph on new points, where that is sound: one graph (no graph break), inputs
-that are the points, their number of rows and the caller's own parameters, no guard on the
-number of rows but ``N >= 2``, and the same result as dynamo's on the probed points, bit for
-bit.  Otherwise None, and the caller goes through dynamo every time.
+:func:`capturing_backend` is Inductor's ``torch.compile`` backend, unchanged, that also records
+each graph it compiled (:class:`Graph`: where dynamo takes each input from, and the symbolic
+sizes that carry its shape guards).  A kernel's caller probes one call through dynamo
+(:func:`probe`): the graph that dynamo's guards chose for these parameters and globals is the
+one it ran.  :func:`direct_call` then gives a call of that graph on new points, where that is
+sound: one graph (no graph break), inputs that are the points, their number of rows and
+columns and the caller's own parameters, no guard on the number of rows but ``N >= 2``, and on
+a copy of a few of the points, the graph that dynamo runs and the same result, bit for bit.
+Otherwise None, and the caller goes through dynamo every time.
 """
 
 from __future__ import annotations
@@ -38,8 +40,11 @@ class Graph:
     def __init__(self, fn: Callable, gm: torch.fx.GraphModule) -> None:
         self.fn = fn
         self.plans: dict[tuple, tuple | None] = {}  # direct_call's checked plans (None: not callable directly)
-        self.inputs = [node.meta.get("grapharg") for node in gm.graph.nodes if node.op == "placeholder"]
-        self.examples = [node.meta.get("example_value") for node in gm.graph.nodes if node.op == "placeholder"]
+        inputs = [node for node in gm.graph.nodes if node.op == "placeholder"]
+        # dynamo's sources (not its graph arguments, which may hold the first call's points) and the
+        # symbolic sizes (whose shape environment holds the compilation's guards)
+        self.sources = [getattr(node.meta.get("grapharg"), "source", None) for node in inputs]
+        self.sizes = [v if isinstance(v := node.meta.get("example_value"), torch.SymInt) else None for node in inputs]
 
     def __call__(self, *args: Any) -> Any:
         for ran in getattr(_probed, "open", ()):
@@ -130,12 +135,12 @@ def _plan(
     direct call is sound (:func:`direct_call`), else None."""
     plan = []
     rows = None
-    for grapharg, example in zip(graph.inputs, graph.examples, strict=True):
-        where = _source(getattr(grapharg, "source", None), x_name, params)
+    for source, size in zip(graph.sources, graph.sizes, strict=True):
+        where = _source(source, x_name, params)
         if where is None:
             return None
         if where == _ROWS:
-            rows = example
+            rows = size
         plan.append(where)
     if rows is None or not _rows_unguarded(rows):
         return None  # a graph for one number of rows, or for some numbers only

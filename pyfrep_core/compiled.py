@@ -254,11 +254,13 @@ class CompiledModel(Model):
         for these parameters and the model's globals as they are; the later ones call that graph
         directly, without dynamo's frame hook, guards and their releases of the GIL, where
         :func:`._graph_calls.direct_call` finds that sound (one graph, fed by the points, their
-        number of rows and these parameters, with the same result bit for bit).  A call on 16
-        points then takes 6 us instead of 31 us on one core; two threads calling side by side,
-        24 us a pair instead of 167 us (and on 26,000 points 213 us instead of 254 us); the
-        dual-contouring mesher's workers at 128^3 make about 17 such calls (2.8 ms less per mesh).
-        A kernel is made for one mesh: a model whose globals change between meshes gets a new one.
+        number of rows and these parameters, with the same result bit for bit).  The Fig. 1 part,
+        float64 (``benchmarks/kernel_calls.py``): a call on 16 points takes 16 us instead of 65 us
+        on one core, 47 us a pair instead of 355 us with two threads calling side by side; on
+        26,000 points 175 us instead of 237 us, and 187 us a pair instead of 461 us (two threads
+        through dynamo ran no faster than one).  The dual-contouring mesher's workers make about 17
+        such calls at 128^3 (2.6-2.8 ms less per mesh, 5%; 12.6 ms at 256^3, 6%).  A kernel is made
+        for one mesh: a model whose globals change between meshes gets a new one.
 
         Examples
         --------

@@ -1,7 +1,9 @@
-"""Point clouds on the surface of a model: area-weighted mesh samples projected onto f = 0.
+"""Points where a model is looked at: clouds on its surface, and planes through its box.
 
 The synthetic data of the paper's fitting experiment (section 5.4): n points on the zero set of
-any model at chosen parameters, optionally with Gaussian noise.
+any model at chosen parameters, optionally with Gaussian noise (area-weighted mesh samples
+projected onto f = 0).  And the grid of a slice (:func:`plane_points`), where the workbench's
+slice views evaluate f and the fields built on it.
 
 >>> from pyfrep_core import model, Param, sphere
 >>> @model(bounds=((-1.2,) * 3, (1.2,) * 3), r=Param(0.8, 0.5, 1.0))
@@ -25,7 +27,7 @@ from .diff import project_to_surface
 from .meshing import Mesh, polygonize
 from .model import Model, check_bounds
 
-__all__ = ["sample_surface", "sample_mesh"]
+__all__ = ["sample_surface", "sample_mesh", "plane_points"]
 
 # Peak bytes per sampled point, measured (peak RSS, a sphere, n = 1e5 to 3e6): 370 to 480 (the
 # drawn faces and barycentric coordinates, the projection's float64 tensors and gradients,
@@ -152,3 +154,53 @@ def sample_surface(
     if noise > 0:
         points = points + rng.normal(0.0, noise, size=points.shape)
     return points
+
+
+def plane_points(bounds: Any, axis: int, offset: float, n: int, dim: int = 3) -> tuple[np.ndarray, list[np.ndarray]]:
+    """Points on the plane ``x[axis] = offset`` across ``bounds``, and the plane's two axes.
+
+    Parameters
+    ----------
+    bounds : ((lo, ...), (hi, ...)) with ``dim`` values each, the box of the model.
+    axis : the axis normal to the plane, 0, 1 or 2 (a planar model, ``dim`` 2: its whole box,
+        ``axis`` and ``offset`` unused).
+    offset : where the plane cuts ``axis`` (length units).
+    n : samples along each of the plane's axes, >= 2.
+    dim : 3, or 2 for a planar model.
+
+    Returns
+    -------
+    points : (n, n, dim) float64; ``points[j, i]`` lies at ``(u[i], v[j])`` (rows follow v, as an
+        image's), with ``u`` and ``v`` along the other axes in increasing order.
+    axes : [u, v], each (n,) float64, the sample positions from the lower to the upper bound.
+
+    Examples
+    --------
+    >>> pts, (u, v) = plane_points(((-1, -1, -1), (1, 1, 1)), axis=0, offset=0.25, n=3)
+    >>> pts.shape, pts[..., 0].min(), pts[..., 0].max(), u.tolist()
+    ((3, 3, 3), 0.25, 0.25, [-1.0, 0.0, 1.0])
+    >>> plane_points(((-1, -1, -1), (1, 1, 1)), axis=3, offset=0.0, n=3)
+    Traceback (most recent call last):
+    ...
+    ValueError: plane_points: axis must be 0, 1 or 2, got 3
+    """
+    if dim not in (2, 3):
+        raise ValueError(f"plane_points: dim must be 2 or 3, got {dim!r}")
+    lo, hi = check_bounds(bounds, dim)
+    if isinstance(n, bool) or not isinstance(n, int | np.integer) or n < 2:
+        raise ValueError(f"plane_points: n must be an integer >= 2, got {n!r}")
+    n = int(n)
+    if dim == 2:
+        u, v = np.linspace(lo[0], hi[0], n), np.linspace(lo[1], hi[1], n)
+        uu, vv = np.meshgrid(u, v, indexing="xy")
+        return np.stack([uu, vv], axis=-1), [u, v]
+    if isinstance(axis, bool) or axis not in (0, 1, 2):
+        raise ValueError(f"plane_points: axis must be 0, 1 or 2, got {axis!r}")
+    if not np.isfinite(offset):
+        raise ValueError(f"plane_points: offset must be finite, got {offset!r}")
+    first, second = (i for i in range(3) if i != axis)
+    u, v = np.linspace(lo[first], hi[first], n), np.linspace(lo[second], hi[second], n)
+    uu, vv = np.meshgrid(u, v, indexing="xy")
+    points = np.empty((n, n, 3))
+    points[..., first], points[..., second], points[..., axis] = uu, vv, float(offset)
+    return points, [u, v]

@@ -8,7 +8,7 @@ import torch
 
 from pyfrep_core import Mesh, Param, model, sample_surface, sphere
 from pyfrep_core.models import microstructure
-from pyfrep_core.sampling import sample_mesh
+from pyfrep_core.sampling import plane_points, sample_mesh
 
 BOX = ((-1.2,) * 3, (1.2,) * 3)
 
@@ -138,3 +138,40 @@ def test_cloud_saved_and_loaded_exactly(tmp_path, suffix):
     cloud = load_points(tmp_path / f"cloud{suffix}")
     np.testing.assert_array_equal(cloud.points, pts)  # XYZ keeps every digit, PLY stores float64
     assert np.abs(microstructure(cloud.points, **p)).max() < 1e-9
+
+
+@pytest.mark.parametrize("axis", [0, 1, 2])
+def test_plane_points_lie_on_the_plane_across_the_box(axis):
+    bounds = ((-1.0, -2.0, 0.5), (3.0, 2.0, 1.5))
+    pts, (u, v) = plane_points(bounds, axis=axis, offset=0.75, n=5)
+    assert pts.shape == (5, 5, 3) and pts.dtype == np.float64
+    np.testing.assert_array_equal(pts[..., axis], 0.75)
+    first, second = (i for i in range(3) if i != axis)
+    np.testing.assert_allclose(u, np.linspace(bounds[0][first], bounds[1][first], 5), rtol=0, atol=0)
+    np.testing.assert_allclose(v, np.linspace(bounds[0][second], bounds[1][second], 5), rtol=0, atol=0)
+    # rows follow v, columns u (an image's layout)
+    np.testing.assert_array_equal(pts[2, 4, first], u[4])
+    np.testing.assert_array_equal(pts[2, 4, second], v[2])
+    # a planar model: its whole box, whatever the axis
+    flat, (x, y) = plane_points(((-1.0, -0.5), (1.0, 0.5)), axis=axis, offset=9.0, n=4, dim=2)
+    assert flat.shape == (4, 4, 2)
+    np.testing.assert_array_equal(flat[3, 0], [x[0], y[3]])
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"axis": 3}, "axis must be 0, 1 or 2, got 3"),
+        ({"axis": True}, "axis must be 0, 1 or 2"),
+        ({"offset": float("nan")}, "offset must be finite"),
+        ({"n": 1}, "n must be an integer >= 2, got 1"),
+        ({"n": 2.5}, "n must be an integer >= 2"),
+        ({"dim": 4}, "dim must be 2 or 3, got 4"),
+        ({"bounds": ((1.0, 0.0, 0.0), (0.0, 1.0, 1.0))}, "inverted or empty on axis 0"),
+        ({"bounds": ((0.0, 0.0), (1.0, 1.0))}, "must give 3 lower and 3 upper values"),
+    ],
+)
+def test_plane_points_names_a_bad_argument(kwargs, match):
+    args = {"bounds": BOX, "axis": 2, "offset": 0.0, "n": 8, **kwargs}
+    with pytest.raises(ValueError, match=match):
+        plane_points(**args)

@@ -485,7 +485,8 @@ def test_param_derivative_agrees_with_diff_param_grad():
 
 def test_slice_panel_shows_the_2d_ellipse_directly_with_its_exact_distance():
     from pyfrep_core.models import ellipse, ellipse_distance
-    from workbench.slice_panel import plane_points, slice_panel
+    from pyfrep_core.sampling import plane_points
+    from workbench.slice_panel import slice_panel
 
     p = slice_panel(models={"ellipse": ellipse}, resolution=40, threaded=False)
     assert p.axis.layout.display == "none"  # a planar model has no slicing plane to choose

@@ -20,10 +20,11 @@ import ipywidgets as widgets
 import numpy as np
 
 from pyfrep_core import Model
+from pyfrep_core.sampling import plane_points
 
 from ._threads import BackgroundRun, MainThread
 from .charts import LineChart
-from .slice_panel import AXES, draw_slices, field_functions, plane_points
+from .slice_panel import AXES, draw_slices, field_functions
 
 # a wrapped progress line at text spacing (an HTML widget's line is a control high, 28 px)
 PROGRESS_STYLE = "style='display:inline-block;line-height:1.35'"

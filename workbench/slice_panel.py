@@ -21,38 +21,16 @@ import numpy as np
 import torch
 
 from pyfrep_core import Model
+from pyfrep_core.sampling import plane_points
 
 from ._threads import LatestWorker, MainThread
 from .charts import figure_png, new_figure
 from .colours import UNDEFINED_COLOUR, colour_range
 
-__all__ = ["SlicePanel", "slice_panel", "FIELDS", "plane_points", "draw_slices", "slice_figure"]
+__all__ = ["SlicePanel", "slice_panel", "FIELDS", "draw_slices", "slice_figure"]
 
 FIELDS = ("f", "omega_1", "omega_2", "delta_1", "redistanced", "true distance")
 AXES = ("x", "y", "z")
-
-
-def plane_points(bounds: Any, axis: int, offset: float, n: int, dim: int = 3) -> tuple[np.ndarray, list[np.ndarray]]:
-    """Points (n, n, dim) of the plane ``x[axis] = offset`` across ``bounds``; and its two axes.
-
-    Examples
-    --------
-    >>> pts, (u, v) = plane_points(((-1, -1, -1), (1, 1, 1)), axis=0, offset=0.25, n=3)
-    >>> pts.shape, pts[..., 0].min(), pts[..., 0].max(), u.tolist()
-    ((3, 3, 3), 0.25, 0.25, [-1.0, 0.0, 1.0])
-    """
-    lo, hi = bounds
-    if dim == 2:
-        u, v = np.linspace(lo[0], hi[0], n), np.linspace(lo[1], hi[1], n)
-        uu, vv = np.meshgrid(u, v, indexing="xy")
-        return np.stack([uu, vv], axis=-1), [u, v]
-    others = [i for i in range(3) if i != axis]
-    u = np.linspace(lo[others[0]], hi[others[0]], n)
-    v = np.linspace(lo[others[1]], hi[others[1]], n)
-    uu, vv = np.meshgrid(u, v, indexing="xy")
-    pts = np.empty((n, n, 3))
-    pts[..., others[0]], pts[..., others[1]], pts[..., axis] = uu, vv, offset
-    return pts, [u, v]
 
 
 def field_functions(model: Model, network: Callable | None = None) -> dict[str, Callable]:

@@ -15,7 +15,7 @@ from contextlib import contextmanager
 import numpy as np
 import pytest
 import torch
-from rounding import float32_error_bound
+from rounding import ULPS_PER_OPERATION, condition_sum, float32_error_bound
 from torch._dynamo.utils import counters
 
 from pyfrep_core import (
@@ -499,10 +499,17 @@ def ball_values(x):
     return BALL["r"] ** 2 - ((x - BALL_CENTER) ** 2).sum(1)
 
 
+def rounding_bound(m, x, dtype, **params):
+    """|f_dtype - f_numpy| at points x (N,) float64: the first-order rounding bound of model ``m`` in ``dtype``
+    plus that of the float64 closed form it is compared with."""
+    eps = torch.finfo(dtype).eps + torch.finfo(torch.float64).eps
+    return (ULPS_PER_OPERATION * eps * condition_sum(m, x.double(), **params)).numpy()
+
+
 def _direct_and_right(kernel, m, params, want, sizes, dtype=torch.float64, seed=40):
-    """For each number of points: kernel's values against want(x) (numpy, float64: to 1e-15 in float64,
-    within the float32 rounding bound of model ``m`` in float32), and whether the call reached the
-    graph directly (no graph run through dynamo)."""
+    """For each number of points: kernel's values against want(x) (numpy, float64) within the rounding
+    bound of model ``m`` in ``dtype``, and whether the call reached the graph directly (no graph run
+    through dynamo)."""
     direct = []
     for k, n in enumerate(sizes):
         x = component_first(in_bounds(m, n, seed=seed + k), dtype)
@@ -510,11 +517,7 @@ def _direct_and_right(kernel, m, params, want, sizes, dtype=torch.float64, seed=
             got = kernel(x)
         assert got.dtype == dtype and got.shape == (n,)
         exact = want(x.double().numpy())
-        if dtype == torch.float64:
-            np.testing.assert_allclose(got.numpy(), exact, rtol=1e-15, atol=1e-15)
-        else:
-            bound = float32_error_bound(m, x.double(), **params).numpy()
-            assert (np.abs(got.double().numpy() - exact) <= bound).all()
+        assert (np.abs(got.double().numpy() - exact) <= rounding_bound(m, x, dtype, **params)).all()
         direct.append(through_dynamo == [])
     return direct
 
@@ -535,8 +538,7 @@ def test_a_values_kernel_calls_the_graph_dynamo_chose_directly_for_any_number_of
             value, gradient = kernel.value_and_grad(x)
         calls.append(through_dynamo == [])
         exact = ball_values(x.double().numpy())
-        tolerance = float32_error_bound(ball, x.double(), **BALL).numpy() if dtype == torch.float32 else 1e-15
-        assert (np.abs(value.double().numpy() - exact) <= tolerance).all()
+        assert (np.abs(value.double().numpy() - exact) <= rounding_bound(ball, x, dtype, **BALL)).all()
         want_gradient = -2 * (x.double().numpy() - BALL_CENTER)  # one rounding of x - c, doubled
         np.testing.assert_allclose(
             gradient.numpy(), want_gradient, rtol=0, atol=1e-6 if dtype == torch.float32 else 1e-15
@@ -574,8 +576,9 @@ def test_a_values_kernel_made_after_a_global_changes_sees_the_new_value():
         for shift in (0.0, 0.5, -0.25):  # a mesh, the global changed, another mesh, ...
             SHIFT[0] = shift
             kernel = f.values_kernel(r=1.1)
+            bound = rounding_bound(shifted_ball, x, torch.float64, r=1.1)
             for _ in range(4):
-                np.testing.assert_allclose(kernel(x).numpy(), want + shift, rtol=1e-15, atol=1e-15)
+                assert (np.abs(kernel(x).numpy() - (want + shift)) <= bound).all()
     finally:
         SHIFT[0] = 0.0
 
